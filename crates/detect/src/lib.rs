@@ -1,0 +1,1 @@
+//! Detect every dot of a dot target using prior knowledge of its lattice

@@ -1,0 +1,1 @@
+//! Fit every dot: elliptical least-squares Gaussian engine and cheaper estimators

@@ -1,0 +1,1 @@
+//! Pipeline glue: pipeline.toml, plans, running the chain over files

@@ -1,0 +1,1 @@
+//! Synthetic dot-target images with exact ground truth
