@@ -1,1 +1,5 @@
-//! Image I/O for real camera files: TIFF (8/12/16-bit, float, compressed, tiled, multi-page), PNG, masks
+//! Image I/O for real camera files.
+
+mod sample;
+
+pub use sample::bos_sample_dir;
