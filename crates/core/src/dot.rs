@@ -38,7 +38,15 @@ pub struct Gaussian2D {
 impl Gaussian2D {
     /// A round dot (sigma_x = sigma_y = sigma, rho = 0).
     pub fn circular(x0: f64, y0: f64, amplitude: f64, sigma: f64, background: f64) -> Self {
-        Gaussian2D { x0, y0, amplitude, sigma_x: sigma, sigma_y: sigma, rho: 0.0, background }
+        Gaussian2D {
+            x0,
+            y0,
+            amplitude,
+            sigma_x: sigma,
+            sigma_y: sigma,
+            rho: 0.0,
+            background,
+        }
     }
     /// Dot diameter along x, d = 4 sigma_x.
     pub fn diameter_x(&self) -> f64 {
@@ -50,13 +58,25 @@ impl Gaussian2D {
     }
     /// Integrated intensity above background, E = 2π I0 σx σy sqrt(1 - rho²).
     pub fn volume(&self) -> f64 {
-        2.0 * std::f64::consts::PI * self.amplitude * self.sigma_x * self.sigma_y * (1.0 - self.rho * self.rho).sqrt()
+        2.0 * std::f64::consts::PI
+            * self.amplitude
+            * self.sigma_x
+            * self.sigma_y
+            * (1.0 - self.rho * self.rho).sqrt()
     }
     /// Whether every parameter is finite and the shape is valid (sigmas > 0, |rho| < 1).
     pub fn is_valid(&self) -> bool {
-        [self.x0, self.y0, self.amplitude, self.sigma_x, self.sigma_y, self.rho, self.background]
-            .iter()
-            .all(|v| v.is_finite())
+        [
+            self.x0,
+            self.y0,
+            self.amplitude,
+            self.sigma_x,
+            self.sigma_y,
+            self.rho,
+            self.background,
+        ]
+        .iter()
+        .all(|v| v.is_finite())
             && self.sigma_x > 0.0
             && self.sigma_y > 0.0
             && self.rho.abs() < 1.0

@@ -111,11 +111,25 @@ pub struct Image {
 
 impl Image {
     /// An image from row-major samples. Errors if a size is zero or the length does not match.
-    pub fn new(width: usize, height: usize, data: Vec<f64>, meta: ImageMeta) -> Result<Self, ShapeError> {
+    pub fn new(
+        width: usize,
+        height: usize,
+        data: Vec<f64>,
+        meta: ImageMeta,
+    ) -> Result<Self, ShapeError> {
         if width == 0 || height == 0 || data.len() != width * height {
-            return Err(ShapeError { width, height, len: data.len() });
+            return Err(ShapeError {
+                width,
+                height,
+                len: data.len(),
+            });
         }
-        Ok(Image { width, height, data, meta })
+        Ok(Image {
+            width,
+            height,
+            data,
+            meta,
+        })
     }
 
     /// An image whose sample at `(x, y)` is `f(x, y)`; metadata default (float, no saturation).
@@ -126,7 +140,12 @@ impl Image {
                 data.push(f(x, y));
             }
         }
-        Image { width, height, data, meta: ImageMeta::default() }
+        Image {
+            width,
+            height,
+            data,
+            meta: ImageMeta::default(),
+        }
     }
 
     pub fn width(&self) -> usize {
@@ -185,13 +204,25 @@ pub struct Mask {
 impl Mask {
     pub fn new(width: usize, height: usize, keep: Vec<bool>) -> Result<Self, ShapeError> {
         if width == 0 || height == 0 || keep.len() != width * height {
-            return Err(ShapeError { width, height, len: keep.len() });
+            return Err(ShapeError {
+                width,
+                height,
+                len: keep.len(),
+            });
         }
-        Ok(Mask { width, height, keep })
+        Ok(Mask {
+            width,
+            height,
+            keep,
+        })
     }
     /// A mask that keeps every pixel.
     pub fn all(width: usize, height: usize) -> Self {
-        Mask { width, height, keep: vec![true; width * height] }
+        Mask {
+            width,
+            height,
+            keep: vec![true; width * height],
+        }
     }
     pub fn from_fn(width: usize, height: usize, mut f: impl FnMut(usize, usize) -> bool) -> Self {
         let mut keep = Vec::with_capacity(width * height);
@@ -200,7 +231,11 @@ impl Mask {
                 keep.push(f(x, y));
             }
         }
-        Mask { width, height, keep }
+        Mask {
+            width,
+            height,
+            keep,
+        }
     }
     pub fn width(&self) -> usize {
         self.width
@@ -233,7 +268,13 @@ mod tests {
     fn shape_is_checked() {
         assert!(Image::new(2, 2, vec![0.0; 3], ImageMeta::default()).is_err());
         assert!(Image::new(0, 2, vec![], ImageMeta::default()).is_err());
-        let img = Image::new(2, 2, vec![1.0, 2.0, 3.0, f64::NAN], ImageMeta::synthetic(12)).unwrap();
+        let img = Image::new(
+            2,
+            2,
+            vec![1.0, 2.0, 3.0, f64::NAN],
+            ImageMeta::synthetic(12),
+        )
+        .unwrap();
         assert_eq!(img.stats(), Some((1.0, 3.0, 2.0)));
         assert!(img.is_saturated(4095.0) && !img.is_saturated(4094.0));
     }

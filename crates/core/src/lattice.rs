@@ -14,18 +14,29 @@ impl Lattice {
     /// screen is negative because y points down: a = spacing·(cos θ, sin θ), b = spacing·(-sin θ, cos θ)).
     pub fn square(origin: [f64; 2], spacing: f64, angle: f64) -> Self {
         let (s, c) = angle.sin_cos();
-        Lattice { origin, a: [spacing * c, spacing * s], b: [-spacing * s, spacing * c] }
+        Lattice {
+            origin,
+            a: [spacing * c, spacing * s],
+            b: [-spacing * s, spacing * c],
+        }
     }
     /// A hexagonal lattice: b at 60° from a.
     pub fn hexagonal(origin: [f64; 2], spacing: f64, angle: f64) -> Self {
         let (s, c) = angle.sin_cos();
         let (s2, c2) = (angle + std::f64::consts::FRAC_PI_3).sin_cos();
-        Lattice { origin, a: [spacing * c, spacing * s], b: [spacing * c2, spacing * s2] }
+        Lattice {
+            origin,
+            a: [spacing * c, spacing * s],
+            b: [spacing * c2, spacing * s2],
+        }
     }
     /// Position of site `idx`.
     pub fn position(&self, idx: GridIndex) -> [f64; 2] {
         let (i, j) = (idx.i as f64, idx.j as f64);
-        [self.origin[0] + i * self.a[0] + j * self.b[0], self.origin[1] + i * self.a[1] + j * self.b[1]]
+        [
+            self.origin[0] + i * self.a[0] + j * self.b[0],
+            self.origin[1] + i * self.a[1] + j * self.b[1],
+        ]
     }
     /// Fractional lattice coordinates (i, j) of a point; `None` if the basis is degenerate.
     pub fn fractional(&self, p: [f64; 2]) -> Option<[f64; 2]> {
@@ -34,11 +45,15 @@ impl Lattice {
             return None;
         }
         let (dx, dy) = (p[0] - self.origin[0], p[1] - self.origin[1]);
-        Some([(dx * self.b[1] - dy * self.b[0]) / det, (self.a[0] * dy - self.a[1] * dx) / det])
+        Some([
+            (dx * self.b[1] - dy * self.b[0]) / det,
+            (self.a[0] * dy - self.a[1] * dx) / det,
+        ])
     }
     /// Nearest site to a point.
     pub fn nearest(&self, p: [f64; 2]) -> Option<GridIndex> {
-        self.fractional(p).map(|f| GridIndex::new(f[0].round() as i32, f[1].round() as i32))
+        self.fractional(p)
+            .map(|f| GridIndex::new(f[0].round() as i32, f[1].round() as i32))
     }
     /// Mean spacing |a|, |b|.
     pub fn spacing(&self) -> f64 {

@@ -15,7 +15,11 @@ pub struct NoiseModel {
 impl NoiseModel {
     /// Signal-independent Gaussian read noise of standard deviation `sigma`.
     pub fn read(sigma: f64) -> Self {
-        NoiseModel { read_variance: sigma * sigma, gain: 0.0, offset: 0.0 }
+        NoiseModel {
+            read_variance: sigma * sigma,
+            gain: 0.0,
+            offset: 0.0,
+        }
     }
     /// Noise variance at mean intensity `mean` (never below the read variance, never < tiny).
     #[inline]
@@ -38,7 +42,11 @@ mod tests {
 
     #[test]
     fn variance_grows_with_signal() {
-        let n = NoiseModel { read_variance: 225.0, gain: 0.7, offset: 100.0 };
+        let n = NoiseModel {
+            read_variance: 225.0,
+            gain: 0.7,
+            offset: 100.0,
+        };
         assert_eq!(n.variance(50.0), 225.0);
         assert!((n.variance(1100.0) - 925.0).abs() < 1e-9);
         assert!(NoiseModel::read(3.0).is_constant());

@@ -13,12 +13,22 @@ pub struct Window {
 
 impl Window {
     pub const fn new(x: i64, y: i64, width: usize, height: usize) -> Self {
-        Window { x, y, width, height }
+        Window {
+            x,
+            y,
+            width,
+            height,
+        }
     }
     /// The (2·half+1)² window centred on the pixel nearest to `(cx, cy)`.
     pub fn centred(cx: f64, cy: f64, half: usize) -> Self {
         let side = 2 * half + 1;
-        Window::new(cx.round() as i64 - half as i64, cy.round() as i64 - half as i64, side, side)
+        Window::new(
+            cx.round() as i64 - half as i64,
+            cy.round() as i64 - half as i64,
+            side,
+            side,
+        )
     }
     /// Number of pixels.
     pub fn len(&self) -> usize {
