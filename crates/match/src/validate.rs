@@ -1,0 +1,248 @@
+//! Validation of displacement vectors: a magnitude threshold and the normalised median test for
+//! scattered data (Westerweel & Scarano 2005).
+
+use crate::error::MatchError;
+use crate::points::{PointSet, median};
+use bostrack_core::DotFlags;
+
+/// The normalised median test of Westerweel & Scarano (2005, "Universal outlier detection for
+/// PIV data", Exp. Fluids 39:1096-1100), for scattered vectors. For vector `d_0` and its
+/// neighbours `d_1 … d_k`, per component:
+///
+/// `r = |d_0 - median(d_i)| / (median(|d_i - median(d_i)|) + ε)`
+///
+/// and the vector is an outlier when `r > threshold` in either component. The neighbours are
+/// the `neighbours` nearest vector positions (kd-tree), the vector itself left out.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MedianTest {
+    /// Number of nearest neighbours, default 8 (the 3x3 neighbourhood of the original test).
+    pub neighbours: usize,
+    /// Threshold on the normalised residual, default 2 (Westerweel & Scarano 2005).
+    pub threshold: f64,
+    /// ε (px): the displacement noise level, which keeps the test from rejecting vectors in
+    /// regions where the neighbours agree better than the noise. Default 0.1 px (the
+    /// original value for PIV); set it near the displacement noise of the data.
+    pub epsilon: f64,
+}
+
+impl Default for MedianTest {
+    fn default() -> Self {
+        MedianTest {
+            neighbours: 8,
+            threshold: 2.0,
+            epsilon: 0.1,
+        }
+    }
+}
+
+/// Settings of [`validate`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ValidationConfig {
+    /// Vectors with `|d| > max_displacement` (px) are outliers; `None`: no threshold. Default
+    /// `None`.
+    pub max_displacement: Option<f64>,
+    /// The normalised median test; `None`: not run. Default on with [`MedianTest::default`].
+    pub median_test: Option<MedianTest>,
+    /// Replace outliers by the median of their neighbours ([`Validation::replaced`]). Default
+    /// off: outliers are only flagged.
+    pub replace: bool,
+}
+
+impl Default for ValidationConfig {
+    fn default() -> Self {
+        ValidationConfig {
+            max_displacement: None,
+            median_test: Some(MedianTest::default()),
+            replace: false,
+        }
+    }
+}
+
+/// Outcome of the validation for one vector.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Verdict {
+    /// Passed every test that was run.
+    Valid,
+    /// `|d|` above the threshold.
+    TooLarge,
+    /// Rejected by the normalised median test.
+    MedianTest,
+    /// Not tested: the vector or its position is not finite, or the median test was asked
+    /// for but fewer than 3 neighbours were available (and no threshold rejected it).
+    NotTested,
+}
+
+/// Per-vector result of [`validate`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct VectorCheck {
+    pub verdict: Verdict,
+    /// Normalised residual `[r_x, r_y]` of the median test; `None` where it was not run.
+    pub residual: Option<[f64; 2]>,
+    /// Component-wise median of the neighbours' vectors; `None` where it was not computed.
+    pub neighbour_median: Option<[f64; 2]>,
+}
+
+impl VectorCheck {
+    /// Whether the vector was rejected (threshold or median test).
+    pub fn is_outlier(&self) -> bool {
+        matches!(self.verdict, Verdict::TooLarge | Verdict::MedianTest)
+    }
+    /// [`DotFlags::OUTLIER`] for a rejected vector, none otherwise.
+    pub fn flags(&self) -> DotFlags {
+        if self.is_outlier() {
+            DotFlags::OUTLIER
+        } else {
+            DotFlags::NONE
+        }
+    }
+}
+
+/// Result of [`validate`], in the order of the input.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Validation {
+    pub checks: Vec<VectorCheck>,
+    /// With [`ValidationConfig::replace`]: the vectors with every outlier replaced by the
+    /// component-wise median of its neighbours (outliers with fewer than 3 valid neighbours
+    /// are kept as they were; they stay flagged).
+    pub replaced: Option<Vec<[f64; 2]>>,
+}
+
+impl Validation {
+    /// Number of rejected vectors.
+    pub fn outliers(&self) -> usize {
+        self.checks.iter().filter(|c| c.is_outlier()).count()
+    }
+}
+
+/// Validate displacement vectors `displacements[i]` located at `positions[i]` (px; use the
+/// reference positions). First the threshold, then the median test, whose neighbourhoods
+/// leave out vectors that are not finite or failed the threshold.
+///
+/// Errors for slices of different lengths or a bad configuration.
+pub fn validate(
+    positions: &[[f64; 2]],
+    displacements: &[[f64; 2]],
+    cfg: &ValidationConfig,
+) -> Result<Validation, MatchError> {
+    if positions.len() != displacements.len() {
+        return Err(MatchError::Length {
+            positions: positions.len(),
+            vectors: displacements.len(),
+        });
+    }
+    if let Some(t) = cfg.max_displacement
+        && (t.is_nan() || t < 0.0)
+    {
+        return Err(MatchError::Config(format!(
+            "max_displacement must be >= 0 px, got {t}"
+        )));
+    }
+    if let Some(m) = cfg.median_test {
+        if m.neighbours < 3 {
+            return Err(MatchError::Config(format!(
+                "the median test needs at least 3 neighbours, got {}",
+                m.neighbours
+            )));
+        }
+        if !(m.threshold > 0.0 && m.threshold.is_finite()) {
+            return Err(MatchError::Config(format!(
+                "median-test threshold must be positive, got {}",
+                m.threshold
+            )));
+        }
+        if !(m.epsilon >= 0.0 && m.epsilon.is_finite()) {
+            return Err(MatchError::Config(format!(
+                "median-test epsilon must be >= 0 px, got {}",
+                m.epsilon
+            )));
+        }
+    }
+
+    let n = positions.len();
+    let finite = |i: usize| {
+        positions[i].iter().all(|v| v.is_finite()) && displacements[i].iter().all(|v| v.is_finite())
+    };
+    let mut checks = vec![
+        VectorCheck {
+            verdict: Verdict::NotTested,
+            residual: None,
+            neighbour_median: None,
+        };
+        n
+    ];
+    for (i, c) in checks.iter_mut().enumerate() {
+        if !finite(i) {
+            continue;
+        }
+        c.verdict = match cfg.max_displacement {
+            Some(t) if displacements[i][0].hypot(displacements[i][1]) > t => Verdict::TooLarge,
+            Some(_) => Verdict::Valid,
+            None if cfg.median_test.is_none() => Verdict::Valid,
+            None => Verdict::NotTested,
+        };
+    }
+
+    if cfg.median_test.is_some() || cfg.replace {
+        let k = cfg
+            .median_test
+            .map_or(MedianTest::default().neighbours, |m| m.neighbours);
+        let eligible: Vec<bool> = (0..n)
+            .map(|i| finite(i) && checks[i].verdict != Verdict::TooLarge)
+            .collect();
+        let set = PointSet::new(positions, |i| eligible[i]);
+        let mut nb = Vec::with_capacity(k + 1);
+        let (mut bx, mut by) = (Vec::new(), Vec::new());
+        let (mut ax, mut ay) = (Vec::new(), Vec::new());
+        for i in 0..n {
+            if !finite(i) {
+                continue;
+            }
+            set.nearest_n(&positions[i], k + 1, &mut nb);
+            nb.retain(|&q| q != i);
+            nb.truncate(k);
+            if nb.len() < 3 {
+                continue; // keeps the threshold's verdict (Valid, TooLarge or NotTested)
+            }
+            bx.clear();
+            by.clear();
+            for &q in &nb {
+                bx.push(displacements[q][0]);
+                by.push(displacements[q][1]);
+            }
+            let mx = median(&mut bx);
+            let my = median(&mut by);
+            let c = &mut checks[i];
+            c.neighbour_median = Some([mx, my]);
+            let Some(m) = cfg.median_test else { continue };
+            if c.verdict == Verdict::TooLarge {
+                continue;
+            }
+            ax.clear();
+            ay.clear();
+            ax.extend(nb.iter().map(|&q| (displacements[q][0] - mx).abs()));
+            ay.extend(nb.iter().map(|&q| (displacements[q][1] - my).abs()));
+            let rx = (displacements[i][0] - mx).abs() / (median(&mut ax) + m.epsilon);
+            let ry = (displacements[i][1] - my).abs() / (median(&mut ay) + m.epsilon);
+            c.residual = Some([rx, ry]);
+            // with epsilon = 0 and identical neighbours, r = 0/0 = NaN for an identical
+            // vector (kept) and inf for a differing one (rejected)
+            c.verdict = if rx > m.threshold || ry > m.threshold {
+                Verdict::MedianTest
+            } else {
+                Verdict::Valid
+            };
+        }
+    }
+
+    let replaced = cfg.replace.then(|| {
+        displacements
+            .iter()
+            .zip(&checks)
+            .map(|(d, c)| match c.neighbour_median {
+                Some(m) if c.is_outlier() => m,
+                _ => *d,
+            })
+            .collect()
+    });
+    Ok(Validation { checks, replaced })
+}

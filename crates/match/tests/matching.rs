@@ -1,0 +1,242 @@
+//! Matching on synthetic point sets and dot records with known correspondence.
+
+use bostrack_core::{DotFit, DotFlags, FitStatus, Gaussian2D, GridIndex};
+use bostrack_match::{MatchConfig, MatchMode, MatchedBy, NearestConfig, match_dots, match_points};
+use rand::rngs::StdRng;
+use rand::{RngExt, SeedableRng};
+use rand_distr::{Distribution, Normal};
+
+/// `nx` x `ny` square lattice of spacing `s`, jittered by ±jitter px.
+fn lattice(nx: usize, ny: usize, s: f64, jitter: f64, rng: &mut StdRng) -> Vec<[f64; 2]> {
+    (0..nx * ny)
+        .map(|k| {
+            [
+                s * (k % nx) as f64 + rng.random_range(-jitter..=jitter),
+                s * (k / nx) as f64 + rng.random_range(-jitter..=jitter),
+            ]
+        })
+        .collect()
+}
+
+/// Solid-body rotation about `c` with |d| = `dmax` at distance `rmax`.
+fn rotation(p: [f64; 2], c: [f64; 2], rmax: f64, dmax: f64) -> [f64; 2] {
+    let w = dmax / rmax;
+    [-w * (p[1] - c[1]), w * (p[0] - c[0])]
+}
+
+fn moved(
+    r: &[[f64; 2]],
+    f: impl Fn([f64; 2]) -> [f64; 2],
+    noise: f64,
+    rng: &mut StdRng,
+) -> Vec<[f64; 2]> {
+    let n = Normal::new(0.0, noise).unwrap();
+    r.iter()
+        .map(|&p| {
+            let d = f(p);
+            [p[0] + d[0] + n.sample(rng), p[1] + d[1] + n.sample(rng)]
+        })
+        .collect()
+}
+
+/// A displacement field larger than the search radius in part of the domain: plain mutual
+/// nearest neighbours leave those dots unmatched, the local-median predictor recovers them
+/// all, without a single wrong pair.
+#[test]
+fn predictor_follows_a_field_larger_than_the_radius() {
+    let mut rng = StdRng::seed_from_u64(11);
+    let spacing = 10.0;
+    let r = lattice(60, 60, spacing, 0.5, &mut rng);
+    let c = [295.0, 295.0];
+    // |d| = 4.8 px at 300 px from the centre and 6.7 px in the corners: beyond the radius
+    // (4 px = 0.4 spacing) and, in the corners, beyond half the spacing
+    let g = moved(&r, |p| rotation(p, c, 300.0, 4.8), 0.03, &mut rng);
+    let plain = NearestConfig {
+        iterations: 0,
+        ..NearestConfig::for_spacing(spacing)
+    };
+    let m0 = match_points(&r, &g, &plain).unwrap();
+    let m = match_points(&r, &g, &NearestConfig::for_spacing(spacing)).unwrap();
+    println!(
+        "plain: {} pairs, {} unmatched; with predictor: {} pairs in {} passes",
+        m0.pairs.len(),
+        m0.unmatched_reference.len(),
+        m.pairs.len(),
+        m.passes
+    );
+    assert!(m0.pairs.iter().all(|&(i, j)| i == j));
+    assert!(m0.unmatched_reference.len() > 100);
+    assert_eq!(m.pairs.len(), r.len());
+    assert!(m.pairs.iter().all(|&(i, j)| i == j));
+    assert!(m.unmatched_gradient.is_empty());
+}
+
+/// A uniform shift of 1.3 spacings: ambiguous to any nearest-neighbour rule (every dot gets a
+/// neighbour's partner), resolved by the initial displacement.
+#[test]
+fn large_uniform_shift_needs_the_initial_displacement() {
+    let mut rng = StdRng::seed_from_u64(12);
+    let r = lattice(30, 30, 8.0, 0.0, &mut rng);
+    let shift = [1.3 * 8.0, 0.2];
+    let g = moved(&r, |_| shift, 0.02, &mut rng);
+    let m = match_points(&r, &g, &NearestConfig::for_spacing(8.0)).unwrap();
+    assert!(m.pairs.iter().all(|&(i, j)| i != j)); // all wrong (by one column)
+    let with_prior = NearestConfig {
+        initial_displacement: Some([10.0, 0.0]),
+        ..NearestConfig::for_spacing(8.0)
+    };
+    let m = match_points(&r, &g, &with_prior).unwrap();
+    assert!(m.pairs.iter().all(|&(i, j)| i == j));
+    assert_eq!(m.pairs.len(), r.len());
+}
+
+/// Missing partners and spurious extra dots: no wrong pair, the missing ones unmatched.
+#[test]
+fn missing_and_spurious_dots() {
+    let mut rng = StdRng::seed_from_u64(13);
+    let r = lattice(80, 80, 8.0, 1.0, &mut rng);
+    let g_all = moved(&r, |p| [0.5 + 0.002 * p[1], -0.3], 0.05, &mut rng);
+    let mut g = Vec::new();
+    let mut truth = Vec::new(); // gradient index -> reference index (None: spurious)
+    let mut dropped = 0;
+    for (i, p) in g_all.iter().enumerate() {
+        if rng.random_range(0.0..1.0) < 0.05 {
+            dropped += 1;
+        } else {
+            g.push(*p);
+            truth.push(Some(i));
+        }
+    }
+    for _ in 0..128 {
+        g.push([rng.random_range(0.0..632.0), rng.random_range(0.0..632.0)]);
+        truth.push(None);
+    }
+    let m = match_points(&r, &g, &NearestConfig::for_spacing(8.0)).unwrap();
+    let wrong = m
+        .pairs
+        .iter()
+        .filter(|&&(i, j)| truth[j] != Some(i))
+        .count();
+    let real_matched = m.pairs.iter().filter(|&&(_, j)| truth[j].is_some()).count();
+    println!(
+        "{} pairs ({} wrong, {} real), {} reference dots without partner ({dropped} dropped)",
+        m.pairs.len(),
+        wrong,
+        real_matched,
+        m.unmatched_reference.len()
+    );
+    // a spurious dot can only take a reference dot whose partner was dropped
+    for &(i, j) in &m.pairs {
+        if truth[j] != Some(i) {
+            assert!(truth[j].is_none() && !truth.contains(&Some(i)));
+        }
+    }
+    assert_eq!(real_matched, r.len() - dropped);
+    assert_eq!(m.pairs.len() + m.unmatched_reference.len(), r.len());
+    assert_eq!(m.pairs.len() + m.unmatched_gradient.len(), g.len());
+}
+
+fn dot(i: i32, j: i32, p: [f64; 2]) -> DotFit {
+    DotFit {
+        index: GridIndex::new(i, j),
+        params: Gaussian2D::circular(p[0], p[1], 1000.0, 1.5, 100.0),
+        crlb_x: 0.01,
+        crlb_y: 0.01,
+        rms: 1.0,
+        iterations: 4,
+        status: FitStatus::Converged,
+        flags: DotFlags::NONE,
+    }
+}
+
+/// Grid-index mode: index pairs first (failed fits included), kd-tree for the rest, and
+/// swapped indices caught as GRID_MISMATCH.
+#[test]
+fn grid_index_mode_with_fallback_and_mismatch() {
+    let (nx, ny, s) = (40, 40, 8.0);
+    let mut rng = StdRng::seed_from_u64(14);
+    let pos = lattice(nx, ny, s, 0.3, &mut rng);
+    let shift = |p: [f64; 2]| [p[0] + 0.8, p[1] - 0.4];
+    let reference: Vec<DotFit> = pos
+        .iter()
+        .enumerate()
+        .map(|(k, &p)| dot((k % nx) as i32, (k / nx) as i32, p))
+        .collect();
+    let mut gradient: Vec<DotFit> = reference
+        .iter()
+        .map(|d| dot(d.index.i, d.index.j, shift([d.params.x0, d.params.y0])))
+        .collect();
+    gradient.reverse(); // order must not matter
+    let at = |g: &[DotFit], i: i32, j: i32| {
+        g.iter()
+            .position(|d| d.index == GridIndex::new(i, j))
+            .unwrap()
+    };
+    // (a) swap the indices of two neighbours
+    let (a, b) = (at(&gradient, 10, 10), at(&gradient, 11, 10));
+    gradient[a].index = GridIndex::new(11, 10);
+    gradient[b].index = GridIndex::new(10, 10);
+    // (b) a dot whose index detection did not keep: fall-back, no mismatch
+    let c = at(&gradient, 20, 5);
+    gradient[c].index = GridIndex::new(900, 900);
+    // (c) a failed gradient fit: still paired by index, and not used by the kd-tree
+    let f = at(&gradient, 3, 30);
+    gradient[f].status = FitStatus::Singular;
+    gradient[f].params.x0 = f64::NAN;
+    let m = match_dots(&reference, &gradient, &MatchConfig::for_spacing(s)).unwrap();
+    assert_eq!(m.pairs.len(), reference.len());
+    assert!(m.unmatched_reference.is_empty() && m.unmatched_gradient.is_empty());
+    for p in &m.pairs {
+        let (ri, gi) = (reference[p.reference].index, gradient[p.gradient].index);
+        let want_mismatch = ri == GridIndex::new(10, 10) || ri == GridIndex::new(11, 10);
+        assert_eq!(
+            p.flags.contains(DotFlags::GRID_MISMATCH),
+            want_mismatch,
+            "{ri:?}"
+        );
+        if ri == GridIndex::new(20, 5) {
+            assert_eq!((p.by, gi), (MatchedBy::Nearest, GridIndex::new(900, 900)));
+            assert_eq!(p.gradient, c);
+        } else {
+            assert_eq!((p.by, gi), (MatchedBy::GridIndex, ri));
+        }
+    }
+    assert_eq!(m.grid_mismatches(), 2);
+
+    // a whole gradient image indexed with an offset of one column: every index pair flagged
+    let offset: Vec<DotFit> = reference
+        .iter()
+        .map(|d| dot(d.index.i + 1, d.index.j, shift([d.params.x0, d.params.y0])))
+        .collect();
+    let m = match_dots(&reference, &offset, &MatchConfig::for_spacing(s)).unwrap();
+    assert_eq!(m.pairs.len(), (nx - 1) * ny);
+    assert_eq!(m.grid_mismatches(), m.pairs.len());
+    assert_eq!(
+        (m.unmatched_reference.len(), m.unmatched_gradient.len()),
+        (ny, ny)
+    );
+
+    // nearest mode: kd-tree only, indices compared; the failed fit is unmatched on both sides
+    let cfg = MatchConfig {
+        mode: MatchMode::Nearest {
+            compare_indices: true,
+        },
+        ..MatchConfig::for_spacing(s)
+    };
+    let m = match_dots(&reference, &gradient, &cfg).unwrap();
+    assert_eq!(m.pairs.len(), reference.len() - 1);
+    assert_eq!(m.unmatched_gradient, vec![f]);
+    assert_eq!(m.unmatched_reference.len(), 1);
+    assert_eq!(
+        reference[m.unmatched_reference[0]].index,
+        GridIndex::new(3, 30)
+    );
+    // geometry-correct pairs; the swapped pair and the re-indexed dot disagree with the index
+    assert_eq!(m.grid_mismatches(), 3);
+    for p in &m.pairs {
+        let g = &gradient[p.gradient];
+        let r = &reference[p.reference];
+        let e = shift([r.params.x0, r.params.y0]);
+        assert!((g.params.x0 - e[0]).abs() < 1e-9 && (g.params.y0 - e[1]).abs() < 1e-9);
+    }
+}
