@@ -1,1 +1,57 @@
-//! Pipeline glue: pipeline.toml, plans, running the chain over files
+//! Pipeline glue of bostrack: the campaign configuration (`pipeline.toml`), the validated
+//! [`Plan`] built from it, and the helpers every command shares (natural file order, worker count).
+//!
+//! Configuration comes in two levels (docs/CONVENTIONS.md, STYLE "Habits" 2):
+//! 1. [`PipelineConfig`]: the file as written. Every struct rejects unknown keys; an unknown key
+//!    is reported with the file, the line, the section and the closest valid key
+//!    ([`ConfigError::UnknownKey`]). Missing keys take their `Default`, the only place a default
+//!    is written; [`template`] generates the annotated file `bostrack init` writes from them.
+//! 2. [`Plan`]: paths resolved against the configuration file's folder, files checked to exist,
+//!    frame patterns expanded and sorted naturally (`frame2` before `frame10`), values checked.
+//!
+//! ```
+//! use bostrack_pipeline::{parse_config, template, PipelineConfig, ConfigError};
+//! use std::path::Path;
+//!
+//! // The annotated template parses back to the defaults.
+//! let text = template(&PipelineConfig::default()).unwrap();
+//! assert_eq!(parse_config(&text, Path::new("pipeline.toml")).unwrap(), PipelineConfig::default());
+//!
+//! // A misspelt key is named with its line and the key that was meant.
+//! let err = parse_config("[match]\nserach_radius = 0.3\n", Path::new("pipeline.toml")).unwrap_err();
+//! assert!(matches!(err, ConfigError::UnknownKey { line: 2, .. }));
+//! assert!(err.to_string().contains("did you mean `search_radius`?"));
+//! ```
+
+mod batch;
+mod config;
+mod error;
+mod figures;
+mod files;
+mod jobs;
+mod load;
+mod pair;
+mod plan;
+mod suggest;
+mod template;
+
+pub use batch::{
+    BatchError, BatchOptions, BatchReport, FrameEvent, FrameFailure, FrameStatus, MergeReport,
+    Progress, Shard, ShardError, Silent, merge_campaign, run_batch,
+};
+pub use config::{
+    ArVariant, DetectSection, Figure, FigureFormat, FitSection, InputConfig, MatchConfig,
+    OutputConfig,
+    PipelineConfig, ReferenceFrom, ReferencePosition, RunConfig, UncertaintyConfig,
+};
+pub use error::{ConfigError, PipelineError};
+pub use files::{glob_match, list_matching, natural_cmp};
+pub use jobs::{available_jobs, resolve_jobs};
+pub use pair::{
+    FrameResult, FrameSummary, ReferenceContext, StageTimes, frame_is_complete, process_frame,
+    write_frame,
+};
+pub use load::{load_config, load_toml, parse_config, parse_toml};
+pub use plan::{OutputPlan, Plan, ReferenceImage};
+pub use suggest::{did_you_mean, edit_distance};
+pub use template::template;

@@ -1,0 +1,261 @@
+//! `bostrack locate`: detect and fit every dot of one image, one CSV row per lattice site.
+
+use crate::Outcome;
+use crate::jobs::JobsArg;
+use anyhow::Context as _;
+use bostrack_core::{DotFit, DotFlags, FitStatus, NoiseModel};
+use bostrack_detect::{DetectConfig, detect};
+use bostrack_fit::{Estimator, FitConfig, estimate_noise, fit_dots};
+use bostrack_model::ModelKind;
+use clap::Args;
+use std::io::Write as _;
+use std::path::PathBuf;
+
+const LOCATE_LONG_ABOUT: &str = "\
+Detect every dot of a dot-target image on its lattice (bostrack-detect), fit each one
+(bostrack-fit) and write one CSV row per lattice site:
+
+  i,j                  grid index (i along the lattice vector closest to +x, j closest to +y)
+  x,y                  fitted centre, px (pixel centres at integers, origin at the centre of the
+                       top-left pixel, y down); NaN when the dot was not fitted
+  status               why the fit stopped: converged, iteration_limit, singular, left_window,
+                       too_few_pixels, non_finite, not_fitted
+  flags                per-dot problems, a|b|c: border, masked, faint, missing, defect, merged,
+                       saturated, nan_pixels, fit_failed, at_bound
+  sigma_x,sigma_y,rho  fitted shape, px (dot diameter d = 4 sigma)
+  amplitude            peak height above the background, counts
+  background           background level, counts
+  crlb_x,crlb_y        exact per-dot Cramér-Rao bound of x and y (1 sigma, px)
+  rms                  root-mean-square fit residual, counts
+  iterations           Levenberg-Marquardt iterations
+  x_pred,y_pred        position of the site predicted by the lattice map, px
+
+The noise model (read + shot noise) that weights the fits and sets the bounds is estimated from
+the image itself unless --read-noise is given. Per-dot problems are data (status and flags),
+never errors: the command fails (exit 1) only when the image cannot be read or no lattice is
+found. Parameters an estimator does not estimate
+are NaN (the three-point Gaussian does not estimate rho).";
+
+/// Detect and fit every dot of an image.
+#[derive(Debug, Args)]
+#[command(
+    about = "Detect and fit every dot of an image; one CSV row per lattice site",
+    long_about = LOCATE_LONG_ABOUT
+)]
+pub(crate) struct LocateArgs {
+    /// Image of the dot target (TIFF or PNG).
+    #[arg(value_name = "IMAGE")]
+    image: PathBuf,
+    /// Region-of-interest mask (white = keep), the size of the image.
+    #[arg(long, value_name = "MASK")]
+    mask: Option<PathBuf>,
+    /// Approximate dot spacing, px (a prior: the lattice is measured from the image).
+    #[arg(long, value_name = "PX")]
+    spacing: Option<f64>,
+    /// Approximate dot diameter d = 4 sigma, px (a prior for the matched filter).
+    #[arg(long, value_name = "PX")]
+    diameter: Option<f64>,
+    /// Free parameters of the fitted Gaussian: elliptical (7), axis-aligned (rho = 0) or
+    /// circular (sigma_x = sigma_y, rho = 0).
+    #[arg(long, value_name = "MODEL", value_parser = parse_model, default_value = "elliptical")]
+    model: ModelKind,
+    /// Estimator: lsg (least-squares Gaussian), iwc (intensity-weighted centroid) or tpg
+    /// (three-point Gaussian).
+    #[arg(long, value_name = "NAME", value_parser = parse_estimator, default_value = "lsg")]
+    estimator: Estimator,
+    /// Read-noise standard deviation, counts. The noise model weights the fit and sets the
+    /// bound; without this option it is estimated from the image (read + shot noise).
+    #[arg(long, value_name = "COUNTS")]
+    read_noise: Option<f64>,
+    /// Shot noise with --read-noise: counts per photo-electron
+    /// (variance = read_noise² + gain · max(signal - offset, 0)).
+    #[arg(
+        long,
+        value_name = "COUNTS",
+        default_value_t = 0.0,
+        requires = "read_noise"
+    )]
+    gain: f64,
+    /// Dark level that carries no shot noise, counts (with --read-noise).
+    #[arg(
+        long,
+        value_name = "COUNTS",
+        default_value_t = 0.0,
+        requires = "read_noise"
+    )]
+    offset: f64,
+    /// Output CSV file (replaced if it exists).
+    #[arg(short = 'o', long = "out", value_name = "CSV")]
+    out: PathBuf,
+    #[command(flatten)]
+    jobs: JobsArg,
+}
+
+fn parse_model(s: &str) -> Result<ModelKind, String> {
+    match s.replace('-', "_").as_str() {
+        "elliptical" => Ok(ModelKind::Elliptical),
+        "axis_aligned" => Ok(ModelKind::AxisAligned),
+        "circular" => Ok(ModelKind::Circular),
+        _ => Err(format!(
+            "unknown model `{s}` (expected elliptical, axis-aligned or circular)"
+        )),
+    }
+}
+
+fn parse_estimator(s: &str) -> Result<Estimator, String> {
+    match s {
+        "lsg" => Ok(Estimator::Lsg),
+        "iwc" => Ok(Estimator::Iwc),
+        "tpg" => Ok(Estimator::Tpg),
+        _ => Err(format!(
+            "unknown estimator `{s}` (expected lsg, iwc or tpg)"
+        )),
+    }
+}
+
+/// The CSV header of `locate`, in column order.
+pub(crate) const COLUMNS: [&str; 17] = [
+    "i",
+    "j",
+    "x",
+    "y",
+    "status",
+    "flags",
+    "sigma_x",
+    "sigma_y",
+    "rho",
+    "amplitude",
+    "background",
+    "crlb_x",
+    "crlb_y",
+    "rms",
+    "iterations",
+    "x_pred",
+    "y_pred",
+];
+
+pub(crate) fn run(args: LocateArgs) -> anyhow::Result<Outcome> {
+    let detect_cfg = DetectConfig {
+        spacing: args.spacing,
+        diameter: args.diameter,
+        ..DetectConfig::default()
+    };
+    detect_cfg.validate()?;
+    let fit_cfg = FitConfig {
+        model: args.model,
+        estimator: args.estimator,
+        ..FitConfig::default()
+    };
+    fit_cfg.validate()?;
+
+    let image = bostrack_io::read_image(&args.image)?;
+    let mask = match &args.mask {
+        Some(m) => Some(bostrack_io::read_mask_for(
+            m,
+            image.width(),
+            image.height(),
+        )?),
+        None => None,
+    };
+    // The noise model: the flags when given, else estimated from the image itself.
+    let noise = match args.read_noise {
+        Some(read_noise) => {
+            if !(read_noise.is_finite()
+                && read_noise > 0.0
+                && args.gain.is_finite()
+                && args.gain >= 0.0
+                && args.offset.is_finite())
+            {
+                anyhow::bail!(
+                    "the noise model needs --read-noise > 0, --gain >= 0 and a finite --offset"
+                );
+            }
+            NoiseModel {
+                read_variance: read_noise * read_noise,
+                gain: args.gain,
+                offset: args.offset,
+            }
+        }
+        None => estimate_noise(&image, mask.as_ref()).with_context(|| {
+            format!(
+                "estimating the noise of {} (give --read-noise)",
+                args.image.display()
+            )
+        })?,
+    };
+    let pool = args.jobs.pool(0)?;
+    let (det, fits) = pool.install(|| -> anyhow::Result<_> {
+        let det = detect(&image, mask.as_ref(), &detect_cfg)?;
+        let fits = fit_dots(&image, mask.as_ref(), &det.seeds, &fit_cfg, &noise)
+            .with_context(|| format!("fitting the dots of {}", args.image.display()))?;
+        Ok((det, fits))
+    })?;
+
+    write_csv(&args.out, &det.seeds, &fits)?;
+    let ok = fits.iter().filter(|f| f.status.is_ok()).count();
+    let missing = fits
+        .iter()
+        .filter(|f| f.flags.contains(DotFlags::MISSING))
+        .count();
+    eprintln!(
+        "{}: {} sites ({} missing), spacing {:.3} px, noise {:.2} counts + gain {:.3}, {} fits usable, {} not; wrote {}",
+        args.image.display(),
+        fits.len(),
+        missing,
+        det.spacing,
+        noise.read_variance.sqrt(),
+        noise.gain,
+        ok,
+        fits.len() - ok,
+        args.out.display()
+    );
+    Ok(Outcome::Done)
+}
+
+fn write_csv(
+    path: &std::path::Path,
+    seeds: &[bostrack_core::Seed],
+    fits: &[DotFit],
+) -> anyhow::Result<()> {
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    }
+    let file =
+        std::fs::File::create(path).with_context(|| format!("cannot write {}", path.display()))?;
+    let mut w = std::io::BufWriter::new(file);
+    let io = |e: std::io::Error| anyhow::anyhow!("cannot write {}: {e}", path.display());
+    writeln!(w, "{}", COLUMNS.join(",")).map_err(io)?;
+    for (seed, f) in seeds.iter().zip(fits) {
+        let p = &f.params;
+        // Not fitted: the position is unknown (NaN), whatever the record holds; the status and
+        // flags say why, and x_pred, y_pred give the lattice's prediction.
+        let (x, y) = if f.status == FitStatus::NotFitted {
+            (f64::NAN, f64::NAN)
+        } else {
+            (p.x0, p.y0)
+        };
+        writeln!(
+            w,
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+            f.index.i,
+            f.index.j,
+            x,
+            y,
+            f.status,
+            f.flags,
+            p.sigma_x,
+            p.sigma_y,
+            p.rho,
+            p.amplitude,
+            p.background,
+            f.crlb_x,
+            f.crlb_y,
+            f.rms,
+            f.iterations,
+            seed.predicted[0],
+            seed.predicted[1]
+        )
+        .map_err(io)?;
+    }
+    w.flush().map_err(io)
+}

@@ -1,0 +1,8 @@
+//! One module per subcommand: its clap arguments (first level) and `run`, which builds the
+//! validated library objects and does the work.
+
+pub(crate) mod check;
+pub(crate) mod info;
+pub(crate) mod init;
+pub(crate) mod locate;
+pub(crate) mod synth;

@@ -1,0 +1,668 @@
+//! From lattice sites with their dot-map peaks to seeds: found / faint / missing, rough centre,
+//! fit window and flags.
+
+use crate::filter::{Peak, dist2};
+use crate::grow::IndexGrid;
+use crate::linalg::{gauss_samples, median, window_centred};
+use crate::{DetectConfig, LatticeKind};
+use bostrack_core::{DotFlags, GridIndex, Image, Mask, Seed, Window};
+
+/// One lattice site before classification.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Site {
+    pub index: GridIndex,
+    /// Where the site is expected (grid map, or reference + predictor when tracking).
+    pub predicted: [f64; 2],
+    /// The dot-map peak chosen for the site, if any.
+    pub peak: Option<Peak>,
+    /// Extra signal-to-noise demanded when the decision rests on `peak` (a position found by a
+    /// search, whose noise is biased upwards) rather than on `predicted`.
+    pub peak_extra: f64,
+}
+
+/// A classified site.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Classified {
+    pub seed: Seed,
+    /// Template amplitude of the dot at its centre (counts); 0 when MISSING.
+    pub contrast: f64,
+}
+
+/// Everything classification needs besides the sites.
+#[derive(Debug)]
+pub(crate) struct Ctx<'a> {
+    pub img: &'a Image,
+    pub sign: f64,
+    pub mask: Option<&'a Mask>,
+    /// Whether the image has non-finite samples (NAN_PIXELS is looked for only then).
+    pub nonfinite: bool,
+    pub spacing: f64,
+    pub sigma: f64,
+    /// Local lattice directions (for the MERGED test).
+    pub a: [f64; 2],
+    pub b: [f64; 2],
+    pub cfg: &'a DetectConfig,
+    /// Robust standard deviation of the template statistic ([`Template::eval`]) where there is
+    /// no dot.
+    pub noise: f64,
+}
+
+/// Rough shape of one dot, from its centroid window (compared only with the neighbours').
+#[derive(Clone, Copy, Debug, Default)]
+struct Shape {
+    /// Template amplitude at the centre (counts, see [`Template::eval`]).
+    amplitude: f64,
+    /// Size `sqrt(M / (2π A))` from the summed weight M above that level (px).
+    size: f64,
+    /// Axis ratio of the intensity-weighted second moments (>= 1).
+    elongation: f64,
+    /// Direction of the major axis (radians).
+    angle: f64,
+}
+
+/// Mean of the finite samples (times `sign`) on the border of the pixel rectangle
+/// `[x0, x1] x [y0, y1]`; NaN if there is none.
+fn ring_mean(img: &Image, sign: f64, x0: usize, x1: usize, y0: usize, y1: usize) -> f64 {
+    let (mut s, mut n) = (0.0, 0usize);
+    let mut add = |v: f64| {
+        if v.is_finite() {
+            s += v;
+            n += 1;
+        }
+    };
+    for y in y0..=y1 {
+        let row = img.row(y);
+        if y == y0 || y == y1 {
+            row[x0..=x1].iter().for_each(|&v| add(v));
+        } else {
+            add(row[x0]);
+            if x1 > x0 {
+                add(row[x1]);
+            }
+        }
+    }
+    if n == 0 {
+        f64::NAN
+    } else {
+        sign * s / n as f64
+    }
+}
+
+/// What [`centroid`] measures of a dot.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Blob {
+    pub centre: [f64; 2],
+    /// Weighted second central moments `[xx, yy, xy]` (px², with the Gaussian weight).
+    pub mom: [f64; 3],
+    /// Highest sample above the level (counts).
+    pub peak: f64,
+    /// Sum of the weights (counts · px²).
+    pub mass: f64,
+}
+
+/// Gaussian-weighted, background-subtracted centroid.
+///
+/// Weights `max(v - t, 0) · exp(-|x - c|² / (2 σw²))` over the `(2·half+1)²` window around the
+/// current centre `c`, with `t` the mean of the first window's border pixels (the local level
+/// between dots) and `σw = max(σ, 0.8)`. For a Gaussian dot of sigma σ the weighted mean moves
+/// only the fraction `σw² / (σ² + σw²)` of the way to the dot centre, so the step is scaled by
+/// `k = 1 + σ²/σw²` (at most 1.6, which keeps the iteration contracting whatever the true
+/// size); two iterations from the dot-map peak. The Gaussian weight keeps the neighbours' light and far noise out,
+/// which the plain thresholded centroid does not at close spacing. Unbiased for a symmetric dot.
+pub(crate) fn centroid(
+    img: &Image,
+    sign: f64,
+    start: [f64; 2],
+    sigma: f64,
+    half: usize,
+) -> Option<Blob> {
+    let (w, h) = (img.width(), img.height());
+    let sw = sigma.max(0.8);
+    let gain = (1.0 + sigma * sigma / (sw * sw)).min(1.6);
+    let inv2 = -0.5 / (sw * sw);
+    let q = (2.0 * inv2).exp();
+    let mut c = start;
+    let mut out = None;
+    let mut t = f64::NAN;
+    let mut gx = vec![0.0; 2 * half + 1];
+    let mut gy = vec![0.0; 2 * half + 1];
+    let mut gxd = vec![0.0; 2 * half + 1];
+    let mut gxdd = vec![0.0; 2 * half + 1];
+    for _ in 0..2 {
+        let win = window_centred(c[0], c[1], half).clip(w, h)?;
+        let (x0, y0) = (win.x as usize, win.y as usize);
+        let (x1, y1) = (x0 + win.width - 1, y0 + win.height - 1);
+        if t.is_nan() {
+            t = ring_mean(img, sign, x0, x1, y0, y1);
+            if !t.is_finite() {
+                return out;
+            }
+        }
+        let nx = win.width;
+        gauss_samples(&mut gx[..nx], x0 as f64 - c[0], inv2, q);
+        gauss_samples(&mut gy[..win.height], y0 as f64 - c[1], inv2, q);
+        for k in 0..nx {
+            let dx = (x0 + k) as f64 - c[0];
+            gxd[k] = gx[k] * dx;
+            gxdd[k] = gx[k] * dx * dx;
+        }
+        // Non-finite samples weigh 0 (NaN.max(0) is 0); row sums give the y moments.
+        let (mut s0, mut sx, mut sy, mut sxx, mut syy, mut sxy) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+        let mut peak: f64 = 0.0;
+        for (ky, y) in (y0..=y1).enumerate() {
+            let row = &img.row(y)[x0..=x1];
+            let dy = y as f64 - c[1];
+            let (mut r0, mut rx, mut rxx) = (0.0, 0.0, 0.0);
+            for k in 0..nx {
+                let v = (sign * row[k] - t).max(0.0);
+                peak = peak.max(v);
+                r0 += v * gx[k];
+                rx += v * gxd[k];
+                rxx += v * gxdd[k];
+            }
+            let g = gy[ky];
+            s0 += g * r0;
+            sx += g * rx;
+            sxx += g * rxx;
+            sy += g * r0 * dy;
+            syy += g * r0 * dy * dy;
+            sxy += g * rx * dy;
+        }
+        if s0.is_nan() || s0 <= 0.0 {
+            return out;
+        }
+        let (mx, my) = (sx / s0, sy / s0);
+        let mom = [sxx / s0 - mx * mx, syy / s0 - my * my, sxy / s0 - mx * my];
+        let nc = [c[0] + gain * mx, c[1] + gain * my];
+        out = Some(Blob {
+            centre: nc,
+            mom,
+            peak,
+            mass: s0,
+        });
+        c = nc;
+    }
+    out
+}
+
+/// The matched-filter test of a dot at a sub-pixel point (see [`Template::eval`]).
+#[derive(Clone, Debug)]
+pub(crate) struct Template {
+    /// Template sigma: the dot's sigma widened by the pixel, `sqrt(σ² + 1/12)`.
+    sigma_t: f64,
+    /// Window half-width: `ceil(2.5 σt)`, at least 1, at most round(spacing/2).
+    half: usize,
+    /// Where the local level is taken: `None` = the window's border (dots that fit in their
+    /// cell); otherwise the offsets of the surrounding cell centres (overlapping dots, whose
+    /// window border lies on the dot and its neighbours).
+    cells: Option<Vec<[f64; 2]>>,
+    /// Whether the image may hold non-finite samples (slower loop that skips them).
+    nonfinite: bool,
+}
+
+impl Template {
+    pub(crate) fn new(
+        sigma: f64,
+        spacing: f64,
+        a: [f64; 2],
+        b: [f64; 2],
+        kind: LatticeKind,
+        nonfinite: bool,
+    ) -> Self {
+        let sigma_t = (sigma * sigma + 1.0 / 12.0).sqrt();
+        let want = (2.5 * sigma_t).ceil();
+        let cell = (0.5 * spacing).round();
+        let half = (want.min(cell) as usize).max(1);
+        let cells = (want > cell).then(|| {
+            let c = |p: f64, q: f64, d: f64| [(p * a[0] + q * b[0]) / d, (p * a[1] + q * b[1]) / d];
+            match kind {
+                LatticeKind::Square => vec![
+                    c(1.0, 1.0, 2.0),
+                    c(1.0, -1.0, 2.0),
+                    c(-1.0, 1.0, 2.0),
+                    c(-1.0, -1.0, 2.0),
+                ],
+                LatticeKind::Hexagonal => vec![
+                    c(1.0, 1.0, 3.0),
+                    c(-1.0, 2.0, 3.0),
+                    c(-2.0, 1.0, 3.0),
+                    c(-1.0, -1.0, 3.0),
+                    c(1.0, -2.0, 3.0),
+                    c(2.0, -1.0, 3.0),
+                ],
+            }
+        });
+        Template {
+            sigma_t,
+            half,
+            cells,
+            nonfinite,
+        }
+    }
+
+    /// Matched-filter test of a dot at the sub-pixel point `p`: with the Gaussian template
+    /// `g = exp(-|x - p|²/(2σt²))` over the `(2·half+1)²` window and `b` the local level,
+    /// returns `T = Σ(v - b) g / ‖g‖` (counts; its noise is about the pixel noise, so `T / σ_T`
+    /// is the signal-to-noise ratio of the best linear detector of a dot of that shape at that
+    /// place) and the least-squares amplitude `A = Σ(v - b) g / Σg²`. The level is the mean of
+    /// the window's border, or, for overlapping dots, the mean of 3x3 pixel blocks at the
+    /// surrounding cell centres (the darkest points of the pattern). Non-finite samples are
+    /// left out. `None` when the window leaves the image or has no finite sample.
+    pub(crate) fn eval(&self, img: &Image, sign: f64, p: [f64; 2]) -> Option<(f64, f64)> {
+        let (w, h) = (img.width(), img.height());
+        if !(p[0].is_finite() && p[1].is_finite()) {
+            return None;
+        }
+        let win = window_centred(p[0], p[1], self.half).clip(w, h)?;
+        let (x0, y0) = (win.x as usize, win.y as usize);
+        let (x1, y1) = (x0 + win.width - 1, y0 + win.height - 1);
+        let b = match &self.cells {
+            None => ring_mean(img, sign, x0, x1, y0, y1),
+            Some(offsets) => {
+                let (mut s, mut n) = (0.0, 0usize);
+                for o in offsets {
+                    let Some(blk) = window_centred(p[0] + o[0], p[1] + o[1], 1).clip(w, h) else {
+                        continue;
+                    };
+                    for y in blk.y as usize..blk.y as usize + blk.height {
+                        for &v in &img.row(y)[blk.x as usize..blk.x as usize + blk.width] {
+                            if v.is_finite() {
+                                s += v;
+                                n += 1;
+                            }
+                        }
+                    }
+                }
+                if n == 0 {
+                    f64::NAN
+                } else {
+                    sign * s / n as f64
+                }
+            }
+        };
+        if !b.is_finite() {
+            return None;
+        }
+        let inv2 = -0.5 / (self.sigma_t * self.sigma_t);
+        let nx = win.width.min(64);
+        let ny = win.height.min(64);
+        let mut gx = [0.0f64; 64];
+        let mut gy = [0.0f64; 64];
+        let q = (2.0 * inv2).exp();
+        gauss_samples(&mut gx[..nx], x0 as f64 - p[0], inv2, q);
+        gauss_samples(&mut gy[..ny], y0 as f64 - p[1], inv2, q);
+        let gsum: f64 = gx[..nx].iter().sum();
+        let (mut sg, mut sgg) = (0.0, 0.0);
+        let gxx: f64 = gx[..nx].iter().map(|g| g * g).sum();
+        for (ky, &g_y) in gy[..ny].iter().enumerate() {
+            let row = &img.row(y0 + ky)[x0..x0 + nx];
+            let (mut r, mut rr) = (0.0, gxx);
+            if self.nonfinite {
+                rr = 0.0;
+                for (&v, &g) in row.iter().zip(&gx[..nx]) {
+                    if v.is_finite() {
+                        r += v * g;
+                        rr += g * g;
+                    }
+                }
+            } else {
+                for (&v, &g) in row.iter().zip(&gx[..nx]) {
+                    r += v * g;
+                }
+            }
+            // Σ (sign·v - b) g over the finite samples of the row.
+            let rs: f64 = if self.nonfinite {
+                row.iter()
+                    .zip(&gx[..nx])
+                    .filter(|(v, _)| v.is_finite())
+                    .map(|(_, g)| g)
+                    .sum()
+            } else {
+                gsum
+            };
+            sg += g_y * (sign * r - b * rs);
+            sgg += g_y * g_y * rr;
+        }
+        (sgg > 0.0).then(|| (sg / sgg.sqrt(), sg / sgg))
+    }
+}
+
+/// The fit window: `cfg.window_half_width` or `max(2, min(round(spacing/2), ceil(1.5·d)))`.
+pub(crate) fn window_half(cfg: &DetectConfig, spacing: f64, sigma: f64) -> usize {
+    cfg.window_half_width.unwrap_or_else(|| {
+        let cell = (0.5 * spacing).round() as usize;
+        let dot = (6.0 * sigma).ceil() as usize;
+        cell.min(dot).max(2)
+    })
+}
+
+/// Robust standard deviation of a statistic (`stat`: the dot map or the template test) at the
+/// interstitial points of the lattice: the
+/// centre of each unit cell (square: mean of the 4 corners; hexagonal: centroid of the
+/// triangle (i,j), (i+1,j), (i,j+1)), where no dot contributes. Uses the MAD of differences
+/// between neighbouring cells (`/√2`), which cancels the smooth background level. `pos` gives
+/// the position of a site if known; only points on kept pixels count.
+pub(crate) fn interstitial_noise(
+    stat: impl Fn([f64; 2]) -> Option<f64>,
+    (w, h): (usize, usize),
+    mask: Option<&Mask>,
+    kind: LatticeKind,
+    sites: &[GridIndex],
+    pos: impl Fn(GridIndex) -> Option<[f64; 2]>,
+) -> Option<f64> {
+    if sites.is_empty() {
+        return None;
+    }
+    let (imin, imax) = sites.iter().fold((i32::MAX, i32::MIN), |(lo, hi), s| {
+        (lo.min(s.i), hi.max(s.i))
+    });
+    let (jmin, jmax) = sites.iter().fold((i32::MAX, i32::MIN), |(lo, hi), s| {
+        (lo.min(s.j), hi.max(s.j))
+    });
+    let mut cell = IndexGrid::new(imin, imax, jmin, jmax, f64::NAN);
+    // Every other row of cells is plenty for a robust spread.
+    let sites: Vec<GridIndex> = sites
+        .iter()
+        .copied()
+        .filter(|s| s.j.rem_euclid(2) == 0)
+        .collect();
+    for s in &sites {
+        let corners: &[(i32, i32)] = match kind {
+            LatticeKind::Square => &[(0, 0), (1, 0), (0, 1), (1, 1)],
+            LatticeKind::Hexagonal => &[(0, 0), (1, 0), (0, 1)],
+        };
+        let mut acc = [0.0, 0.0];
+        let mut ok = true;
+        for &(di, dj) in corners {
+            match pos(GridIndex::new(s.i + di, s.j + dj)) {
+                Some(p) => {
+                    acc[0] += p[0];
+                    acc[1] += p[1];
+                }
+                None => {
+                    ok = false;
+                    break;
+                }
+            }
+        }
+        if !ok {
+            continue;
+        }
+        let c = [acc[0] / corners.len() as f64, acc[1] / corners.len() as f64];
+        let (px, py) = (c[0].round(), c[1].round());
+        if px < 0.0 || py < 0.0 || px >= w as f64 || py >= h as f64 {
+            continue;
+        }
+        if mask.is_some_and(|m| !m.keeps(px as usize, py as usize)) {
+            continue;
+        }
+        if let Some(v) = cell.get_mut(s.i, s.j)
+            && let Some(t) = stat(c)
+        {
+            *v = t;
+        }
+    }
+    let mut diffs = Vec::new();
+    for s in &sites {
+        let (Some(&v), Some(&u)) = (cell.get(s.i, s.j), cell.get(s.i + 1, s.j)) else {
+            continue;
+        };
+        if v.is_finite() && u.is_finite() {
+            diffs.push((v - u).abs());
+        }
+    }
+    if diffs.len() < 10 {
+        return None;
+    }
+    Some(1.4826 * median(&mut diffs) / std::f64::consts::SQRT_2)
+}
+
+/// Classify every site (see the crate documentation for the rules).
+pub(crate) fn classify(ctx: &Ctx, sites: &[Site]) -> Vec<Classified> {
+    let n = sites.len();
+    if n == 0 {
+        return Vec::new();
+    }
+    let (w, h) = (ctx.img.width(), ctx.img.height());
+    let cfg = ctx.cfg;
+    let s = ctx.spacing;
+    let (imin, imax) = sites.iter().fold((i32::MAX, i32::MIN), |(lo, hi), t| {
+        (lo.min(t.index.i), hi.max(t.index.i))
+    });
+    let (jmin, jmax) = sites.iter().fold((i32::MAX, i32::MIN), |(lo, hi), t| {
+        (lo.min(t.index.j), hi.max(t.index.j))
+    });
+    let mut slot = IndexGrid::new(imin, imax, jmin, jmax, usize::MAX);
+    for (k, t) in sites.iter().enumerate() {
+        if let Some(v) = slot.get_mut(t.index.i, t.index.j) {
+            *v = k;
+        }
+    }
+    let neighbours = |k: usize, r: i32, out: &mut Vec<usize>| {
+        out.clear();
+        let idx = sites[k].index;
+        slot.visit(idx.i, idx.j, r, |di, dj, &q| {
+            if (di, dj) != (0, 0) && q != usize::MAX {
+                out.push(q);
+            }
+        });
+    };
+
+    // 1. Significant dots (template test at the prediction, or at the searched peak with a
+    //    stricter threshold) and the local amplitude scale.
+    let tpl = Template::new(ctx.sigma, s, ctx.a, ctx.b, cfg.lattice, ctx.nonfinite);
+    let noise = ctx.noise.max(1e-12);
+    let mut snr = vec![f64::NEG_INFINITY; n];
+    let mut vals = vec![0.0; n];
+    let mut pos_dec: Vec<[f64; 2]> = sites.iter().map(|t| t.predicted).collect();
+    for (k, st) in sites.iter().enumerate() {
+        if let Some((t, a)) = tpl.eval(ctx.img, ctx.sign, st.predicted) {
+            snr[k] = t / noise;
+            vals[k] = a;
+        }
+        if let Some(pk) = st.peak
+            && dist2(pk.pos(), st.predicted) > 0.25
+            && let Some((t, a)) = tpl.eval(ctx.img, ctx.sign, pk.pos())
+            && t / noise - st.peak_extra > snr[k]
+        {
+            snr[k] = t / noise - st.peak_extra;
+            vals[k] = a;
+            pos_dec[k] = pk.pos();
+        }
+    }
+    let cand: Vec<bool> = (0..n)
+        .map(|k| snr[k] >= cfg.min_snr && vals[k] > 0.0)
+        .collect();
+    let mut all: Vec<f64> = (0..n).filter(|&k| cand[k]).map(|k| vals[k]).collect();
+    let global = median(&mut all);
+    let mut nb = Vec::with_capacity(24);
+    let mut tmp = Vec::with_capacity(24);
+    let mut found = vec![false; n];
+    let mut local_v = vec![global; n];
+    for k in 0..n {
+        if !cand[k] {
+            continue;
+        }
+        for r in 1..=2 {
+            neighbours(k, r, &mut nb);
+            tmp.clear();
+            tmp.extend(nb.iter().filter(|&&q| cand[q]).map(|&q| vals[q]));
+            if tmp.len() >= 3 {
+                local_v[k] = median(&mut tmp);
+                break;
+            }
+        }
+        found[k] =
+            local_v[k].is_nan() || local_v[k] <= 0.0 || vals[k] >= cfg.missing_ratio * local_v[k];
+    }
+
+    // 2. Centres and shapes of the found dots.
+    let half_c = ((2.5 * ctx.sigma.max(0.8)).ceil().min((0.5 * s).round()) as usize).max(1);
+    let mut centre: Vec<[f64; 2]> = sites.iter().map(|t| t.predicted).collect();
+    let mut shape = vec![Shape::default(); n];
+    for k in 0..n {
+        if !found[k] {
+            continue;
+        }
+        let p = sites[k].peak.map_or(sites[k].predicted, |p| p.pos());
+        let blob = centroid(ctx.img, ctx.sign, p, ctx.sigma, half_c);
+        let (c, mom) = blob.map_or((p, [0.0; 3]), |b| (b.centre, b.mom));
+        // A centroid that wandered off its peak (a brighter neighbour) is not trusted.
+        centre[k] = if dist2(c, p) <= (0.3 * s).powi(2) {
+            c
+        } else {
+            p
+        };
+        let size = blob.map_or(0.0, |b| {
+            (b.mass / (2.0 * std::f64::consts::PI * b.peak)).sqrt()
+        });
+        // The amplitude at the centre; the decision's value serves when within 0.3 px of it.
+        let amp = if dist2(centre[k], pos_dec[k]) <= 0.09 {
+            vals[k]
+        } else {
+            tpl.eval(ctx.img, ctx.sign, centre[k]).map_or(0.0, |t| t.1)
+        };
+        let tr = mom[0] + mom[1];
+        let disc = ((mom[0] - mom[1]).powi(2) + 4.0 * mom[2] * mom[2]).sqrt();
+        let (l1, l2) = (0.5 * (tr + disc), 0.5 * (tr - disc));
+        let elongation = if l2 > 1e-9 { (l1 / l2).sqrt() } else { 1.0 };
+        let angle = 0.5 * (2.0 * mom[2]).atan2(mom[0] - mom[1]);
+        shape[k] = Shape {
+            amplitude: amp,
+            size,
+            elongation,
+            angle,
+        };
+    }
+
+    // 3. Duplicates: two neighbouring sites on the same dot keep the better-predicted one.
+    for k in 0..n {
+        if !found[k] {
+            continue;
+        }
+        neighbours(k, 1, &mut nb);
+        for &q in &nb {
+            if found[q] && found[k] && dist2(centre[k], centre[q]) < (0.4 * s).powi(2) {
+                let dk = dist2(centre[k], sites[k].predicted);
+                let dq = dist2(centre[q], sites[q].predicted);
+                let lose = if dk > dq { k } else { q };
+                found[lose] = false;
+                centre[lose] = sites[lose].predicted;
+            }
+        }
+    }
+
+    // 4. Flags relative to the neighbours. The shape tests run only where the dot is clearly
+    //    above the noise and its shape differs from the image-wide median by over 20 %.
+    let strong = |k: usize| found[k] && snr[k] >= 8.0;
+    let mut gs: Vec<f64> = (0..n)
+        .filter(|&k| strong(k))
+        .map(|k| shape[k].size)
+        .collect();
+    let mut ge: Vec<f64> = (0..n)
+        .filter(|&k| strong(k))
+        .map(|k| shape[k].elongation)
+        .collect();
+    let (gsize, gelong) = (median(&mut gs), median(&mut ge));
+    let mut out = Vec::with_capacity(n);
+    let half_w = window_half(cfg, s, ctx.sigma);
+    let mut ta = Vec::with_capacity(24);
+    let mut ts = Vec::with_capacity(24);
+    let mut te = Vec::with_capacity(24);
+    let mut tox = Vec::with_capacity(24);
+    let mut toy = Vec::with_capacity(24);
+    for k in 0..n {
+        let mut flags = DotFlags::NONE;
+        let c = centre[k];
+        if !found[k] {
+            flags.insert(DotFlags::MISSING);
+        } else {
+            neighbours(k, 1, &mut nb);
+            ta.clear();
+            ts.clear();
+            te.clear();
+            tox.clear();
+            toy.clear();
+            let sh = shape[k];
+            let own_off = [c[0] - sites[k].predicted[0], c[1] - sites[k].predicted[1]];
+            let check_off = own_off[0].hypot(own_off[1]) > 0.1 * s;
+            let check_shape = strong(k)
+                && ((sh.size / gsize - 1.0).abs() > 0.2
+                    || sh.elongation > 1.2 * gelong
+                    || gsize.is_nan()
+                    || gsize <= 0.0);
+            for &q in nb.iter().filter(|&&q| found[q]) {
+                ta.push(shape[q].amplitude);
+                if check_shape && strong(q) {
+                    ts.push(shape[q].size);
+                    te.push(shape[q].elongation);
+                }
+                if check_off {
+                    tox.push(centre[q][0] - sites[q].predicted[0]);
+                    toy.push(centre[q][1] - sites[q].predicted[1]);
+                }
+            }
+            if ta.len() >= 3 {
+                let am = median(&mut ta);
+                if sh.amplitude < cfg.faint_ratio * am {
+                    flags.insert(DotFlags::FAINT);
+                } else if sh.amplitude > 2.5 * am {
+                    flags.insert(DotFlags::DEFECT);
+                }
+                if check_off {
+                    let off = [own_off[0] - median(&mut tox), own_off[1] - median(&mut toy)];
+                    if off[0].hypot(off[1]) > 0.25 * s {
+                        flags.insert(DotFlags::DEFECT);
+                    }
+                }
+            }
+            if check_shape && ts.len() >= 3 {
+                let sm = median(&mut ts);
+                let em = median(&mut te);
+                let elongated = sh.elongation > (1.4 * em).max(1.5);
+                let along_lattice = [ctx.a, ctx.b].iter().any(|d| {
+                    let da = (sh.angle - d[1].atan2(d[0])).rem_euclid(std::f64::consts::PI);
+                    da.min(std::f64::consts::PI - da) < 20f64.to_radians()
+                });
+                if elongated && along_lattice && sh.size > 1.3 * sm {
+                    flags.insert(DotFlags::MERGED);
+                } else if elongated || sh.size > 1.5 * sm || sh.size < 0.67 * sm {
+                    flags.insert(DotFlags::DEFECT);
+                }
+            }
+        }
+        let win = Window::centred(c[0], c[1], half_w);
+        let clipped = win.clip(w, h).unwrap_or(Window::new(
+            win.x.clamp(0, w as i64 - 1),
+            win.y.clamp(0, h as i64 - 1),
+            1,
+            1,
+        ));
+        if clipped != win {
+            flags.insert(DotFlags::BORDER);
+        }
+        let (x0, y0) = (clipped.x as usize, clipped.y as usize);
+        let (x1, y1) = (x0 + clipped.width, y0 + clipped.height);
+        if ctx.nonfinite && (y0..y1).any(|y| ctx.img.row(y)[x0..x1].iter().any(|v| !v.is_finite()))
+        {
+            flags.insert(DotFlags::NAN_PIXELS);
+        }
+        if let Some(m) = ctx.mask
+            && (y0..y1).any(|y| m.as_slice()[y * w + x0..y * w + x1].iter().any(|k| !k))
+        {
+            flags.insert(DotFlags::MASKED);
+        }
+        let seed = Seed {
+            index: sites[k].index,
+            predicted: sites[k].predicted,
+            centre: c,
+            window: clipped,
+            flags,
+        };
+        out.push(Classified {
+            seed,
+            contrast: if found[k] { shape[k].amplitude } else { 0.0 },
+        });
+    }
+    out
+}

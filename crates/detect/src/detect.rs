@@ -1,0 +1,991 @@
+//! The two entry points: [`detect`] (reference image) and [`track`] (any other image of the
+//! same target, seeded by the reference detection).
+
+use crate::acf;
+use crate::classify::{Ctx, Site, Template, classify, interstitial_noise};
+use crate::filter::{DotMap, FilterParams, Peak, dist2};
+use crate::grow::{IndexGrid, find_start, grow};
+use crate::linalg::median;
+use crate::map::GridMap;
+use crate::size::{Patch, fit_sigma};
+use crate::{DetectConfig, DetectError, LatticeKind};
+use bostrack_core::{DotFlags, GridIndex, Image, Lattice, Mask, Seed};
+use serde::{Deserialize, Serialize};
+use std::collections::VecDeque;
+
+/// Smallest image side accepted.
+const MIN_SIDE: usize = 32;
+/// Fewest dots for a lattice.
+const MIN_DOTS: usize = 9;
+
+/// Counts and diagnostics of one detection.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct DetectStats {
+    /// Reported sites (= seeds).
+    pub sites: usize,
+    /// Seeds with a dot (not MISSING), FAINT ones included.
+    pub found: usize,
+    pub faint: usize,
+    pub missing: usize,
+    pub border: usize,
+    pub masked: usize,
+    pub defect: usize,
+    pub merged: usize,
+    /// Robust noise of the filtered image (counts): the unit of `min_snr`.
+    pub noise: f64,
+    /// RMS residual of the grid map over the dots it was fitted to (px).
+    pub map_rms: f64,
+    /// Dots the grid map was fitted to (after outlier rejection).
+    pub map_inliers: usize,
+    /// Binning factor of the dot map (1 = full resolution; larger for large dots).
+    pub binning: usize,
+    /// Measured spacing / spacing hint, when a hint was given.
+    pub spacing_hint_ratio: Option<f64>,
+}
+
+/// Result of [`detect`] or [`track`]: one [`Seed`] per lattice site, with the lattice it lies on.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Detection {
+    /// Size of the image the detection was made on.
+    pub width: usize,
+    pub height: usize,
+    /// The local lattice at site (0, 0) (origin = its predicted position, `a` = ∂p/∂i,
+    /// `b` = ∂p/∂j of the grid map).
+    pub lattice: Lattice,
+    /// The smooth grid → image map (see [`GridMap::predict`]). [`track`] keeps the reference's.
+    pub map: GridMap,
+    /// Mean nearest-neighbour spacing at site (0, 0), px.
+    pub spacing: f64,
+    /// Typical dot diameter d = 4σ measured on the image, px: a least-squares fit of the
+    /// lattice of Gaussian dots around up to 32 well-surrounded dots, or the autocorrelation's
+    /// estimate when there are too few (a typical value: the fit stage measures each dot).
+    pub diameter: f64,
+    /// One seed per reported site, sorted by `(j, i)` for [`detect`]; in the reference's order
+    /// for [`track`].
+    pub seeds: Vec<Seed>,
+    /// Filtered contrast of each seed's dot (counts, same order as `seeds`; 0 when MISSING).
+    pub contrast: Vec<f64>,
+    pub stats: DetectStats,
+}
+
+impl Detection {
+    /// Predicted image position of a (possibly fractional) grid index (px).
+    pub fn predict(&self, i: f64, j: f64) -> [f64; 2] {
+        self.map.predict(i, j)
+    }
+
+    /// The seed of a grid index, if reported.
+    pub fn seed(&self, idx: GridIndex) -> Option<&Seed> {
+        self.seeds.iter().find(|s| s.index == idx)
+    }
+}
+
+pub(crate) fn image_name(img: &Image) -> String {
+    match &img.meta.source {
+        Some(p) if img.meta.page > 0 => format!("{} (page {})", p.display(), img.meta.page),
+        Some(p) => p.display().to_string(),
+        None => "in-memory image".to_string(),
+    }
+}
+
+/// Checks shared by detect and track.
+fn check_inputs(img: &Image, mask: Option<&Mask>, name: &str) -> Result<Inputs, DetectError> {
+    let (w, h) = (img.width(), img.height());
+    if w < MIN_SIDE || h < MIN_SIDE {
+        return Err(DetectError::ImageTooSmall {
+            image: name.into(),
+            width: w,
+            height: h,
+            min: MIN_SIDE,
+        });
+    }
+    if let Some(m) = mask {
+        if !m.matches(img) {
+            return Err(DetectError::MaskSize {
+                image: name.into(),
+                width: w,
+                height: h,
+                mask_width: m.width(),
+                mask_height: m.height(),
+            });
+        }
+        if !m.as_slice().iter().any(|&k| k) {
+            return Err(DetectError::EmptyMask { image: name.into() });
+        }
+    }
+    // Range of the finite samples (a constant image has none), whether any is non-finite, and
+    // the centroid of the kept region.
+    let data = img.data();
+    // Eight independent lanes so that the compiler vectorises the reductions.
+    let (mut lo8, mut hi8, mut bad8) = ([f64::INFINITY; 8], [f64::NEG_INFINITY; 8], [false; 8]);
+    let chunks = data.chunks_exact(8);
+    let rest = chunks.remainder();
+    for ch in chunks {
+        for k in 0..8 {
+            let v = ch[k];
+            bad8[k] |= !v.is_finite();
+            lo8[k] = if v < lo8[k] { v } else { lo8[k] };
+            hi8[k] = if v > hi8[k] { v } else { hi8[k] };
+        }
+    }
+    let nonfinite = bad8.iter().any(|&b| b) || rest.iter().any(|v| !v.is_finite());
+    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    if nonfinite {
+        for &v in data.iter().filter(|v| v.is_finite()) {
+            lo = lo.min(v);
+            hi = hi.max(v);
+        }
+    } else {
+        for &v in rest {
+            lo = lo.min(v);
+            hi = hi.max(v);
+        }
+        lo = lo8.iter().fold(lo, |a, &b| a.min(b));
+        hi = hi8.iter().fold(hi, |a, &b| a.max(b));
+    }
+    let (mut sx, mut sy, mut n) = (0.0, 0.0, 0usize);
+    if let Some(m) = mask {
+        for (y, row) in m.as_slice().chunks_exact(w).enumerate() {
+            let mut cnt = 0usize;
+            let mut xs = 0usize;
+            for (x, &k) in row.iter().enumerate() {
+                cnt += k as usize;
+                xs += x * k as usize;
+            }
+            n += cnt;
+            sx += xs as f64;
+            sy += (cnt * y) as f64;
+        }
+    }
+    if hi.is_nan() || lo.is_nan() || hi - lo <= 1e-9 * hi.abs().max(lo.abs()) {
+        return Err(DetectError::NoContrast { image: name.into() });
+    }
+    let centre = if n > 0 {
+        [sx / n as f64, sy / n as f64]
+    } else {
+        [(w as f64 - 1.0) / 2.0, (h as f64 - 1.0) / 2.0]
+    };
+    Ok(Inputs {
+        fill: 0.5 * (lo + hi),
+        centre,
+        nonfinite,
+    })
+}
+
+/// What [`check_inputs`] learns about an image.
+struct Inputs {
+    /// Replacement for non-finite samples (mid-range of the finite ones).
+    fill: f64,
+    /// Centroid of the kept region (the image centre without a mask).
+    centre: [f64; 2],
+    /// Whether any sample is non-finite.
+    nonfinite: bool,
+}
+
+fn norm(v: [f64; 2]) -> f64 {
+    v[0].hypot(v[1])
+}
+
+/// The basis per docs/CONVENTIONS.md from a reduced basis: `a` = the short lattice vector
+/// closest to +x; `b` = the short lattice vector at the smallest positive angle from `a`
+/// (turning towards +y): about +90° on a square lattice, +60° on a hexagonal one.
+fn conventional_basis(
+    v1: [f64; 2],
+    v2: [f64; 2],
+    kind: LatticeKind,
+    name: &str,
+) -> Result<([f64; 2], [f64; 2]), DetectError> {
+    let lmax = norm(v2) * 1.15;
+    let mut short: Vec<[f64; 2]> = Vec::new();
+    for (p, q) in [(1.0, 0.0), (0.0, 1.0), (1.0, 1.0), (1.0, -1.0)] {
+        let v = [p * v1[0] + q * v2[0], p * v1[1] + q * v2[1]];
+        if norm(v) <= lmax {
+            short.push(v);
+            short.push([-v[0], -v[1]]);
+        }
+    }
+    let a = short
+        .iter()
+        .copied()
+        .max_by(|p, q| (p[0] / norm(*p)).total_cmp(&(q[0] / norm(*q))))
+        .unwrap_or(v1);
+    let ang = |v: [f64; 2]| (a[0] * v[1] - a[1] * v[0]).atan2(a[0] * v[0] + a[1] * v[1]);
+    let b = short
+        .iter()
+        .copied()
+        .filter(|v| ang(*v) > 0.2)
+        .min_by(|p, q| ang(*p).total_cmp(&ang(*q)))
+        .unwrap_or(v2);
+    let deg = ang(b).to_degrees();
+    let expected = match kind {
+        LatticeKind::Square => 90.0,
+        LatticeKind::Hexagonal => 60.0,
+    };
+    if (deg - expected).abs() > 15.0 {
+        return Err(DetectError::LatticeMismatch {
+            image: name.into(),
+            expected: kind,
+            angle_deg: deg,
+        });
+    }
+    Ok((a, b))
+}
+
+/// Autocorrelation crop sizes to try, smallest first: 64 px (or about 10 hinted spacings),
+/// doubling up to 512 px or the largest power of two inside the image.
+fn crop_sizes(w: usize, h: usize, hint: Option<f64>) -> Vec<usize> {
+    let side = w.min(h);
+    let largest = 1usize << (usize::BITS - 1 - side.leading_zeros());
+    let first = match hint {
+        Some(s) => ((10.0 * s).ceil() as usize)
+            .next_power_of_two()
+            .clamp(64, 256),
+        None => 64,
+    }
+    .min(largest);
+    let mut out = Vec::new();
+    let mut n = first;
+    while n <= largest.min(512) {
+        out.push(n);
+        n *= 2;
+    }
+    out
+}
+
+fn kept(mask: Option<&Mask>, w: usize, h: usize, p: [f64; 2]) -> bool {
+    let (x, y) = (p[0].round(), p[1].round());
+    if !(x >= 0.0 && y >= 0.0 && x < w as f64 && y < h as f64) {
+        return false;
+    }
+    mask.is_none_or(|m| m.keeps(x as usize, y as usize))
+}
+
+/// Whether a kept pixel of the image lies in the 3x3 block around the pixel nearest to `p`.
+fn near_kept(mask: Option<&Mask>, w: usize, h: usize, p: [f64; 2]) -> bool {
+    let (x, y) = (p[0].round(), p[1].round());
+    if !(x >= -1.0 && y >= -1.0 && x <= w as f64 && y <= h as f64) {
+        return false;
+    }
+    let (x, y) = (x as i64, y as i64);
+    (y - 1..=y + 1).any(|yy| {
+        (x - 1..=x + 1).any(|xx| {
+            xx >= 0
+                && yy >= 0
+                && (xx as usize) < w
+                && (yy as usize) < h
+                && mask.is_none_or(|m| m.keeps(xx as usize, yy as usize))
+        })
+    })
+}
+
+fn stats_of(
+    seeds: &[Seed],
+    noise: f64,
+    map_rms: f64,
+    map_inliers: usize,
+    binning: usize,
+    hint: Option<f64>,
+) -> DetectStats {
+    let count = |f: DotFlags| seeds.iter().filter(|s| s.flags.contains(f)).count();
+    DetectStats {
+        sites: seeds.len(),
+        found: seeds.len() - count(DotFlags::MISSING),
+        faint: count(DotFlags::FAINT),
+        missing: count(DotFlags::MISSING),
+        border: count(DotFlags::BORDER),
+        masked: count(DotFlags::MASKED),
+        defect: count(DotFlags::DEFECT),
+        merged: count(DotFlags::MERGED),
+        noise,
+        map_rms,
+        map_inliers,
+        binning,
+        spacing_hint_ratio: hint,
+    }
+}
+
+/// Detect every dot of a dot-target image (see the crate documentation for the method and the
+/// conventions).
+pub fn detect(
+    image: &Image,
+    mask: Option<&Mask>,
+    cfg: &DetectConfig,
+) -> Result<Detection, DetectError> {
+    cfg.validate()?;
+    let name = image_name(image);
+    let (w, h) = (image.width(), image.height());
+    let Inputs {
+        fill,
+        centre,
+        nonfinite,
+    } = check_inputs(image, mask, &name)?;
+    let sign = cfg.polarity.sign();
+
+    // 1-2. Lattice basis and dot size from the autocorrelation of a crop, the dot map, and
+    //      region growing from a confirmed dot near the centre of the kept region. A crop that
+    //      shows no lattice, or a lattice on which no dot can be grown, gives way to the next
+    //      larger crop.
+    let mut last_err = None;
+    let mut mismatch = None;
+    let mut setup = None;
+    for n in crop_sizes(w, h, cfg.spacing) {
+        let est = match acf::estimate(image, sign, mask, centre, n) {
+            Ok(e) => e,
+            Err(reason) => {
+                last_err = Some(DetectError::NoLattice {
+                    image: name.clone(),
+                    reason,
+                });
+                continue;
+            }
+        };
+        let (a, b) = match conventional_basis(est.v1, est.v2, cfg.lattice, &name) {
+            Ok(ab) => ab,
+            Err(DetectError::LatticeMismatch { angle_deg, .. }) => {
+                // A clear lattice of the other kind is a mismatch; any other angle means the
+                // autocorrelation peaks were not a dot lattice.
+                let other = match cfg.lattice {
+                    LatticeKind::Square => 60.0,
+                    LatticeKind::Hexagonal => 90.0,
+                };
+                if (angle_deg - other).abs() <= 15.0 {
+                    mismatch = Some(DetectError::LatticeMismatch {
+                        image: name.clone(),
+                        expected: cfg.lattice,
+                        angle_deg,
+                    });
+                } else {
+                    last_err = Some(DetectError::NoLattice {
+                        image: name.clone(),
+                        reason: format!(
+                            "the autocorrelation peaks make {angle_deg:.1}°, neither a square nor a hexagonal lattice"
+                        ),
+                    });
+                }
+                continue;
+            }
+            Err(e) => {
+                last_err = Some(e);
+                continue;
+            }
+        };
+        let spacing0 = 0.5 * (norm(a) + norm(b));
+        let sigma = cfg.diameter.map_or(est.sigma, |d| d / 4.0);
+        let fp = FilterParams::new(spacing0, sigma);
+        let dmap = DotMap::build(image, sign, fill, nonfinite, &fp);
+        let Some(start) = find_start(&dmap, a, b, centre, w, h) else {
+            last_err = Some(DetectError::TooFewDots {
+                image: name.clone(),
+                found: 0,
+                min: MIN_DOTS,
+            });
+            continue;
+        };
+        // Noise of the dot map at the cell centres around the start dot (the autocorrelation
+        // basis is exact enough over ±6 sites), so that growth never accepts noise peaks.
+        let local: Vec<GridIndex> = (-6..=6)
+            .flat_map(|j| (-6..=6).map(move |i| GridIndex::new(i, j)))
+            .collect();
+        let noise0 = interstitial_noise(
+            |c| Some(dmap.sample(c)),
+            (w, h),
+            mask,
+            cfg.lattice,
+            &local,
+            |g| {
+                Some([
+                    start.x + g.i as f64 * a[0] + g.j as f64 * b[0],
+                    start.y + g.i as f64 * a[1] + g.j as f64 * b[1],
+                ])
+            },
+        )
+        .unwrap_or_else(|| fallback_map_noise(&dmap));
+        let grown = grow(&dmap, a, b, start, cfg.min_snr * noise0, w, h);
+        if grown.len() < MIN_DOTS {
+            last_err = Some(DetectError::TooFewDots {
+                image: name.clone(),
+                found: grown.len(),
+                min: MIN_DOTS,
+            });
+            continue;
+        }
+        setup = Some((est, spacing0, sigma, fp, dmap, grown));
+        break;
+    }
+    let Some((est, spacing0, sigma, fp, dmap, grown)) = setup else {
+        return Err(mismatch.or(last_err).unwrap_or(DetectError::NoLattice {
+            image: name,
+            reason: "image too small for the analysis".into(),
+        }));
+    };
+
+    // 3. Robust polynomial grid map over the grown dots in the kept region.
+    let mut pts: Vec<(f64, f64, [f64; 2])> = grown
+        .iter()
+        .filter(|g| kept(mask, w, h, g.pos))
+        .map(|g| (g.index.i as f64, g.index.j as f64, g.pos))
+        .collect();
+    if pts.len() < MIN_DOTS {
+        pts = grown
+            .iter()
+            .map(|g| (g.index.i as f64, g.index.j as f64, g.pos))
+            .collect();
+    }
+    let Some((mut map, inliers, map_rms)) =
+        GridMap::fit_robust(&pts, cfg.map_degree, 0.05 * spacing0)
+    else {
+        return Err(DetectError::TooFewDots {
+            image: name,
+            found: grown.len(),
+            min: MIN_DOTS,
+        });
+    };
+    let map_inliers = inliers.iter().filter(|u| **u).count();
+
+    // 4. Anchor: the site predicted nearest to the image centre is (0, 0).
+    let img_centre = [(w as f64 - 1.0) / 2.0, (h as f64 - 1.0) / 2.0];
+    let anchor = map.nearest_site(img_centre).unwrap_or(GridIndex::new(0, 0));
+    map.shift(anchor.i, anchor.j);
+    let lattice = map.local_lattice(0.0, 0.0);
+    let spacing = lattice.spacing();
+
+    // 4b. Dot size from patches around dots whose 8 neighbours were all grown (up to 32, spread
+    //     over the list); the autocorrelation's (or the hint's) value when too few.
+    let (imin, imax) = grown.iter().fold((i32::MAX, i32::MIN), |(lo, hi), g| {
+        (lo.min(g.index.i), hi.max(g.index.i))
+    });
+    let (jmin, jmax) = grown.iter().fold((i32::MAX, i32::MIN), |(lo, hi), g| {
+        (lo.min(g.index.j), hi.max(g.index.j))
+    });
+    let mut grown_grid = IndexGrid::new(imin, imax, jmin, jmax, false);
+    for g in &grown {
+        if let Some(v) = grown_grid.get_mut(g.index.i, g.index.j) {
+            *v = true;
+        }
+    }
+    let surrounded: Vec<GridIndex> = grown
+        .iter()
+        .filter(|g| kept(mask, w, h, g.pos))
+        .filter(|g| {
+            let mut all = true;
+            grown_grid.visit(g.index.i, g.index.j, 1, |_, _, &v| all &= v);
+            all && (g.index.i > imin && g.index.i < imax && g.index.j > jmin && g.index.j < jmax)
+        })
+        .map(|g| GridIndex::new(g.index.i - anchor.i, g.index.j - anchor.j))
+        .collect();
+    let stride = surrounded.len().div_ceil(32).max(1);
+    let patches: Vec<Patch> = surrounded
+        .iter()
+        .step_by(stride)
+        .map(|g| {
+            let mut dots = vec![map.position(*g)];
+            for dj in -1..=1 {
+                for di in -1..=1 {
+                    if (di, dj) != (0, 0) {
+                        dots.push(map.position(GridIndex::new(g.i + di, g.j + dj)));
+                    }
+                }
+            }
+            Patch { dots }
+        })
+        .collect();
+    let fitted = fit_sigma(image, sign, &patches, spacing);
+    let sigma = fitted.unwrap_or(sigma);
+    let diameter = 4.0 * fitted.unwrap_or(est.sigma);
+
+    // 5. Candidate sites: the grown dots and their 5x5 neighbourhoods, inside the image.
+    // None: not a candidate; Some(None): a neighbour of a grown dot; Some(Some(p)): grown.
+    let mut seen: IndexGrid<Option<Option<Peak>>> =
+        IndexGrid::new(imin - 2, imax + 2, jmin - 2, jmax + 2, None);
+    for g in &grown {
+        seen.visit_mut(g.index.i, g.index.j, 2, |_, _, v| {
+            if v.is_none() {
+                *v = Some(None);
+            }
+        });
+    }
+    for g in &grown {
+        if let Some(v) = seen.get_mut(g.index.i, g.index.j) {
+            *v = Some(Some(Peak {
+                x: g.pos[0],
+                y: g.pos[1],
+                v: g.v,
+            }));
+        }
+    }
+    // Sites in grid order (j, then i); a grown dot keeps its peak when the map agrees with it.
+    let r_s = (0.25 * spacing).max(1.5);
+    let mut buf = Vec::new();
+    let mut sites: Vec<Site> = Vec::new();
+    for (i, j, v) in seen.iter() {
+        let Some(grown_peak) = *v else { continue };
+        let idx = GridIndex::new(i - anchor.i, j - anchor.j);
+        let p = map.position(idx);
+        if p[0] < -0.5 || p[1] < -0.5 || p[0] > w as f64 - 0.5 || p[1] > h as f64 - 0.5 {
+            continue;
+        }
+        let peak = match grown_peak {
+            Some(q) if dist2(q.pos(), p) <= r_s * r_s => Some(q),
+            _ => dmap.strongest(p, r_s, &mut buf),
+        };
+        sites.push(Site {
+            index: idx,
+            predicted: p,
+            peak,
+            peak_extra: 1.0,
+        });
+    }
+    // 6. Noise of the dot map at the cell centres, classification.
+    let site_idx: Vec<GridIndex> = sites.iter().map(|s| s.index).collect();
+    let mut pos_grid = IndexGrid::new(
+        imin - anchor.i - 2,
+        imax - anchor.i + 2,
+        jmin - anchor.j - 2,
+        jmax - anchor.j + 2,
+        None,
+    );
+    for s in &sites {
+        if let Some(v) = pos_grid.get_mut(s.index.i, s.index.j) {
+            *v = Some(s.predicted);
+        }
+    }
+    let tpl = Template::new(sigma, spacing, lattice.a, lattice.b, cfg.lattice, nonfinite);
+    let stat = |c: [f64; 2]| tpl.eval(image, sign, c).map(|t| t.0);
+    let noise = interstitial_noise(stat, (w, h), mask, cfg.lattice, &site_idx, |g| {
+        pos_grid.get(g.i, g.j).copied().flatten()
+    })
+    .unwrap_or_else(|| fallback_noise(stat, w, h, spacing));
+    let ctx = Ctx {
+        img: image,
+        sign,
+        mask,
+        nonfinite,
+        spacing,
+        sigma,
+        a: lattice.a,
+        b: lattice.b,
+        cfg,
+        noise,
+    };
+    let classified = classify(&ctx, &sites);
+
+    // 7. Report: found dots centred on or next to a kept pixel; missing sites predicted on a kept
+    //    pixel, and only when enclosed by found dots (or the edge of the kept region) along a
+    //    grid row or column.
+    let mut found_grid = IndexGrid::new(
+        imin - anchor.i - 2,
+        imax - anchor.i + 2,
+        jmin - anchor.j - 2,
+        jmax - anchor.j + 2,
+        false,
+    );
+    for c in &classified {
+        if !c.seed.flags.contains(DotFlags::MISSING)
+            && let Some(v) = found_grid.get_mut(c.seed.index.i, c.seed.index.j)
+        {
+            *v = true;
+        }
+    }
+    let is_found = |i: i32, j: i32| found_grid.get(i, j).copied().unwrap_or(false);
+    let outside = |i: i32, j: i32| !kept(mask, w, h, map.predict(i as f64, j as f64));
+    let enclosed = |idx: GridIndex| {
+        [(1, 0), (0, 1)].iter().any(|&(di, dj)| {
+            let side = |sg: i32| -> (bool, bool) {
+                for k in 1..=2 {
+                    let (i, j) = (idx.i + sg * k * di, idx.j + sg * k * dj);
+                    if is_found(i, j) {
+                        return (true, true);
+                    }
+                    if outside(i, j) {
+                        return (true, false);
+                    }
+                }
+                (false, false)
+            };
+            let (ok1, f1) = side(1);
+            let (ok2, f2) = side(-1);
+            ok1 && ok2 && (f1 || f2)
+        })
+    };
+    let report: Vec<(Seed, f64)> = classified
+        .into_iter()
+        .filter(|c| {
+            let missing = c.seed.flags.contains(DotFlags::MISSING);
+            if missing {
+                kept(mask, w, h, c.seed.predicted) && enclosed(c.seed.index)
+            } else {
+                near_kept(mask, w, h, c.seed.centre)
+            }
+        })
+        .map(|c| (c.seed, c.contrast))
+        .collect();
+    let (seeds, contrast): (Vec<Seed>, Vec<f64>) = report.into_iter().unzip();
+    let hint = cfg.spacing.map(|s| spacing / s);
+    let stats = stats_of(&seeds, noise, map_rms, map_inliers, fp.k, hint);
+    Ok(Detection {
+        width: w,
+        height: h,
+        lattice,
+        map,
+        spacing,
+        diameter,
+        seeds,
+        contrast,
+        stats,
+    })
+}
+
+/// Robust spread of the whole dot map, used only when the lattice gives too few cell centres.
+fn fallback_map_noise(map: &DotMap) -> f64 {
+    let step = (map.d.data.len() / 20000).max(1);
+    let mut v: Vec<f64> = map.d.data.iter().step_by(step).map(|&x| x as f64).collect();
+    let m = median(&mut v);
+    let mut dev: Vec<f64> = v.iter().map(|x| (x - m).abs()).collect();
+    1.4826 * median(&mut dev)
+}
+
+/// Spread of a statistic over a regular grid of points (every half spacing), from the half
+/// below its median (where there is no dot), used only when the lattice gives too few cell
+/// centres.
+fn fallback_noise(stat: impl Fn([f64; 2]) -> Option<f64>, w: usize, h: usize, spacing: f64) -> f64 {
+    let step = (0.5 * spacing).max(1.0);
+    let mut v = Vec::new();
+    let mut y = 0.0;
+    while y < h as f64 && v.len() < 20000 {
+        let mut x = 0.0;
+        while x < w as f64 {
+            if let Some(t) = stat([x, y]) {
+                v.push(t);
+            }
+            x += step;
+        }
+        y += step;
+    }
+    let m = median(&mut v);
+    let mut dev: Vec<f64> = v.iter().filter(|&&x| x <= m).map(|x| m - x).collect();
+    1.4826 * median(&mut dev)
+}
+
+/// Track the dots of a reference detection into another image of the same target (gradient
+/// image, no-flow stack image): the result has the same grid indices, one seed per reference
+/// seed in the reference's order.
+///
+/// Each dot is first searched without a predictor: the strong dot-map peak nearest to its
+/// reference position within `search_radius · spacing` (this finds displacements up to about
+/// 0.45 spacing). Dots whose displacement agrees with their neighbours' are confident; starting
+/// from the confident dot of smallest displacement, the lattice is then grown outward, each dot
+/// searched within 0.3 spacing of its reference position plus the median displacement of the
+/// neighbours already tracked (5x5 index neighbourhood), so smoothly varying displacements larger
+/// than half a spacing are followed. `predicted` = reference position + that predictor.
+pub fn track(
+    image: &Image,
+    mask: Option<&Mask>,
+    reference: &Detection,
+    cfg: &DetectConfig,
+) -> Result<Detection, DetectError> {
+    cfg.validate()?;
+    let name = image_name(image);
+    let (w, h) = (image.width(), image.height());
+    if (w, h) != (reference.width, reference.height) {
+        return Err(DetectError::ReferenceSize {
+            image: name,
+            width: w,
+            height: h,
+            ref_width: reference.width,
+            ref_height: reference.height,
+        });
+    }
+    if reference.seeds.is_empty() {
+        return Err(DetectError::EmptyReference);
+    }
+    let Inputs {
+        fill, nonfinite, ..
+    } = check_inputs(image, mask, &name)?;
+    let sign = cfg.polarity.sign();
+    let s = reference.spacing;
+    let sigma = reference.diameter / 4.0;
+    let fp = FilterParams::new(s, sigma);
+    let dmap = DotMap::build(image, sign, fill, nonfinite, &fp);
+
+    let seeds = &reference.seeds;
+    let n = seeds.len();
+    let (imin, imax) = seeds.iter().fold((i32::MAX, i32::MIN), |(lo, hi), t| {
+        (lo.min(t.index.i), hi.max(t.index.i))
+    });
+    let (jmin, jmax) = seeds.iter().fold((i32::MAX, i32::MIN), |(lo, hi), t| {
+        (lo.min(t.index.j), hi.max(t.index.j))
+    });
+    let mut slot = IndexGrid::new(imin, imax, jmin, jmax, usize::MAX);
+    for (k, t) in seeds.iter().enumerate() {
+        if let Some(v) = slot.get_mut(t.index.i, t.index.j) {
+            *v = k;
+        }
+    }
+    let neighbours = |k: usize, r: i32, out: &mut Vec<usize>| {
+        out.clear();
+        let idx = seeds[k].index;
+        for dj in -r..=r {
+            for di in -r..=r {
+                if (di, dj) != (0, 0)
+                    && let Some(&q) = slot.get(idx.i + di, idx.j + dj)
+                    && q != usize::MAX
+                {
+                    out.push(q);
+                }
+            }
+        }
+    };
+    let q: Vec<[f64; 2]> = seeds.iter().map(|t| t.centre).collect();
+    let disp = |p: &Peak, k: usize| [p.x - q[k][0], p.y - q[k][1]];
+
+    // Pass 1: no predictor.
+    let mut buf = Vec::new();
+    let r1 = cfg.search_radius * s;
+    let first: Vec<Option<Peak>> = (0..n)
+        .map(|k| {
+            dmap.nearest_strong(q[k], r1, &mut buf)
+                .filter(|p| p.v > 0.0)
+        })
+        .collect();
+    let mut nb = Vec::with_capacity(24);
+    let mut tx = Vec::with_capacity(24);
+    let mut ty = Vec::with_capacity(24);
+    let mut starts: Vec<(f64, usize)> = Vec::new();
+    for k in 0..n {
+        let Some(p) = first[k] else { continue };
+        neighbours(k, 2, &mut nb);
+        tx.clear();
+        ty.clear();
+        for &o in &nb {
+            if let Some(pq) = first[o] {
+                let d = disp(&pq, o);
+                tx.push(d[0]);
+                ty.push(d[1]);
+            }
+        }
+        if tx.len() >= 3 {
+            let d = disp(&p, k);
+            let med = [median(&mut tx), median(&mut ty)];
+            if dist2(d, med) < (0.15 * s).powi(2) {
+                starts.push((norm(d), k));
+            }
+        }
+    }
+    // Where the true displacement exceeds half a spacing, the nearest peak is a neighbour's
+    // and its (wrong) displacement can look small and consistent too. The region of truly small
+    // displacement is taken to be the largest connected one: the start is the smallest
+    // displacement of the largest connected group of consistent dots under a quarter spacing,
+    // then of the next largest group for what growth from there cannot reach.
+    let mut comp = vec![usize::MAX; n];
+    let small: Vec<bool> = {
+        let mut v = vec![false; n];
+        for &(dn, k) in &starts {
+            v[k] = dn < 0.25 * s;
+        }
+        v
+    };
+    let mut groups: Vec<Vec<usize>> = Vec::new();
+    for k0 in 0..n {
+        if !small[k0] || comp[k0] != usize::MAX {
+            continue;
+        }
+        let id = groups.len();
+        let mut members = vec![k0];
+        comp[k0] = id;
+        let mut head = 0;
+        while head < members.len() {
+            let k = members[head];
+            head += 1;
+            neighbours(k, 1, &mut nb);
+            for &o in &nb {
+                if small[o] && comp[o] == usize::MAX {
+                    comp[o] = id;
+                    members.push(o);
+                }
+            }
+        }
+        groups.push(members);
+    }
+    groups.sort_by_key(|g| std::cmp::Reverse(g.len()));
+    let dnorm = |k: usize| first[k].map_or(f64::INFINITY, |p| norm(disp(&p, k)));
+    let mut ordered: Vec<(f64, usize)> = groups
+        .iter()
+        .filter_map(|g| {
+            g.iter()
+                .copied()
+                .min_by(|&a, &b| dnorm(a).total_cmp(&dnorm(b)))
+        })
+        .map(|k| (dnorm(k), k))
+        .collect();
+    // Then every other consistent dot, smallest displacement first (isolated parts).
+    starts.sort_by(|x, y| x.0.total_cmp(&y.0));
+    ordered.extend(starts.iter().copied());
+    let starts = ordered;
+
+    // Growth with the neighbours' median displacement as predictor.
+    #[derive(Clone, Copy, PartialEq)]
+    enum St {
+        Unvisited,
+        Queued,
+        Accepted,
+        Failed,
+    }
+    let mut state = vec![St::Unvisited; n];
+    let mut tries = vec![0u8; n];
+    let mut result: Vec<Option<Peak>> = vec![None; n];
+    let mut pred_disp: Vec<Option<[f64; 2]>> = vec![None; n];
+    let mut queue = VecDeque::new();
+    let mut vals = Vec::with_capacity(24);
+    let r2 = 0.3 * s;
+    let push_nb = |k: usize,
+                   state: &mut Vec<St>,
+                   tries: &[u8],
+                   queue: &mut VecDeque<usize>,
+                   nb: &mut Vec<usize>| {
+        neighbours(k, 1, nb);
+        for &o in nb.iter() {
+            if state[o] == St::Unvisited || (state[o] == St::Failed && tries[o] < 3) {
+                state[o] = St::Queued;
+                queue.push_back(o);
+            }
+        }
+    };
+    for &(_, st) in &starts {
+        if state[st] != St::Unvisited {
+            continue;
+        }
+        state[st] = St::Accepted;
+        result[st] = first[st];
+        push_nb(st, &mut state, &tries, &mut queue, &mut nb);
+        while let Some(t) = queue.pop_front() {
+            if state[t] != St::Queued {
+                continue;
+            }
+            neighbours(t, 2, &mut nb);
+            tx.clear();
+            ty.clear();
+            vals.clear();
+            for &o in &nb {
+                if state[o] == St::Accepted
+                    && let Some(p) = result[o]
+                {
+                    let d = disp(&p, o);
+                    tx.push(d[0]);
+                    ty.push(d[1]);
+                    vals.push(p.v);
+                }
+            }
+            if tx.is_empty() {
+                state[t] = St::Failed;
+                tries[t] += 1;
+                continue;
+            }
+            let pd = [median(&mut tx), median(&mut ty)];
+            let m = median(&mut vals);
+            pred_disp[t] = Some(pd);
+            let c = [q[t][0] + pd[0], q[t][1] + pd[1]];
+            match dmap.nearest_strong(c, r2, &mut buf) {
+                Some(p) if p.v > 0.0 && p.v >= 0.3 * m => {
+                    state[t] = St::Accepted;
+                    result[t] = Some(p);
+                    push_nb(t, &mut state, &tries, &mut queue, &mut nb);
+                }
+                _ => {
+                    state[t] = St::Failed;
+                    tries[t] += 1;
+                }
+            }
+        }
+    }
+    // Dots never reached (isolated): keep a small first-pass displacement.
+    for k in 0..n {
+        if state[k] == St::Unvisited
+            && let Some(p) = first[k]
+            && norm(disp(&p, k)) < 0.25 * s
+        {
+            result[k] = Some(p);
+        }
+    }
+
+    // Sites: predicted = reference position + the neighbours' median displacement.
+    let mut sites = Vec::with_capacity(n);
+    for k in 0..n {
+        neighbours(k, 2, &mut nb);
+        tx.clear();
+        ty.clear();
+        for &o in &nb {
+            if let Some(p) = result[o] {
+                let d = disp(&p, o);
+                tx.push(d[0]);
+                ty.push(d[1]);
+            }
+        }
+        let pd = if tx.len() >= 2 {
+            [median(&mut tx), median(&mut ty)]
+        } else {
+            pred_disp[k].unwrap_or([0.0, 0.0])
+        };
+        // A dot the reference did not see must pass a stricter test when found by a search.
+        let peak_extra = if seeds[k].flags.contains(DotFlags::MISSING) {
+            1.0
+        } else {
+            0.0
+        };
+        sites.push(Site {
+            index: seeds[k].index,
+            predicted: [q[k][0] + pd[0], q[k][1] + pd[1]],
+            peak: result[k],
+            peak_extra,
+        });
+    }
+    let site_idx: Vec<GridIndex> = seeds.iter().map(|t| t.index).collect();
+    let tpl = Template::new(
+        sigma,
+        s,
+        reference.lattice.a,
+        reference.lattice.b,
+        cfg.lattice,
+        nonfinite,
+    );
+    let stat = |c: [f64; 2]| tpl.eval(image, sign, c).map(|t| t.0);
+    let noise = interstitial_noise(stat, (w, h), mask, cfg.lattice, &site_idx, |g| {
+        slot.get(g.i, g.j)
+            .filter(|&&k| k != usize::MAX)
+            .and_then(|&k| result[k].map(|p| p.pos()))
+    })
+    .unwrap_or_else(|| fallback_noise(stat, w, h, s));
+    let ctx = Ctx {
+        img: image,
+        sign,
+        mask,
+        nonfinite,
+        spacing: s,
+        sigma,
+        a: reference.lattice.a,
+        b: reference.lattice.b,
+        cfg,
+        noise,
+    };
+    let classified = classify(&ctx, &sites);
+    let (seeds, contrast): (Vec<Seed>, Vec<f64>) =
+        classified.into_iter().map(|c| (c.seed, c.contrast)).unzip();
+    let stats = stats_of(
+        &seeds,
+        noise,
+        reference.stats.map_rms,
+        reference.stats.map_inliers,
+        fp.k,
+        None,
+    );
+    Ok(Detection {
+        width: w,
+        height: h,
+        lattice: reference.lattice,
+        map: reference.map.clone(),
+        spacing: s,
+        diameter: reference.diameter,
+        seeds,
+        contrast,
+        stats,
+    })
+}

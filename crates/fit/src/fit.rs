@@ -1,0 +1,457 @@
+//! Fitting one window: loading its pixels, the start, the estimators and the solvers.
+
+use crate::config::{Estimator, FitConfig, Solver};
+use crate::eval::{IB, IX, IY, Kind, Theta, Workspace, gaussian_from_theta, theta_from_gaussian};
+use crate::lmcrate::solve_lm_crate;
+use crate::solver::{Bounds, Outcome, position_bound, solve_fast};
+use crate::start::{moments, three_point};
+use bostrack_core::{
+    DotFit, DotFlags, FitStatus, Gaussian2D, GridIndex, Image, Mask, NoiseModel, Window,
+};
+
+/// A least-squares fit whose Cramér-Rao bound in x or y exceeds this (px) carries no position
+/// information (no dot, or pure noise): its status is `Singular`.
+pub(crate) const MAX_BOUND_PX: f64 = 1.0;
+
+/// The samples of one window, for data that is not in an [`Image`] (synthetic windows,
+/// a caller's own buffers).
+#[derive(Clone, Copy, Debug)]
+pub struct WindowSamples<'a> {
+    /// Where the samples are: `values[j * window.width + i]` is pixel
+    /// `(window.x + i, window.y + j)`.
+    pub window: Window,
+    /// Row-major samples, `window.len()` of them (non-finite samples are left out and flagged).
+    pub values: &'a [f64],
+    /// `false` = masked out (same layout as `values`); `None` keeps every pixel.
+    pub keep: Option<&'a [bool]>,
+    /// Samples at or above this level are saturated (left out and flagged).
+    pub saturation: Option<f64>,
+}
+
+/// A reusable fitter: the configuration plus scratch buffers, so that fitting many windows
+/// allocates nothing per dot (the levenberg-marquardt crate path excepted).
+///
+/// ```
+/// use bostrack_core::{Gaussian2D, NoiseModel, Window};
+/// use bostrack_fit::{FitConfig, Fitter, WindowSamples};
+/// use bostrack_model::{render, Sampling};
+/// let truth = Gaussian2D { x0: 4.3, y0: 3.8, amplitude: 900.0, sigma_x: 1.5, sigma_y: 1.2, rho: 0.3, background: 100.0 };
+/// let window = Window::new(0, 0, 9, 9);
+/// let values = render(&truth, window, Sampling::Integrated);
+/// let mut fitter = Fitter::new(&FitConfig::default());
+/// let s = WindowSamples { window, values: &values, keep: None, saturation: None };
+/// let fit = fitter.fit_samples(&s, [4.0, 4.0], None, &NoiseModel::read(10.0));
+/// assert!(fit.status.is_ok());
+/// assert!((fit.params.x0 - 4.3).abs() < 1e-6 && (fit.params.rho - 0.3).abs() < 1e-6);
+/// ```
+#[derive(Debug, Clone)]
+pub struct Fitter {
+    cfg: FitConfig,
+    kind: Kind,
+    pub(crate) ws: Workspace,
+}
+
+impl Fitter {
+    pub fn new(cfg: &FitConfig) -> Fitter {
+        Fitter {
+            cfg: cfg.clone(),
+            kind: Kind::from_model(cfg.model),
+            ws: Workspace::default(),
+        }
+    }
+
+    pub fn config(&self) -> &FitConfig {
+        &self.cfg
+    }
+
+    /// Fits the dot in `window` of `img` (see [`crate::fit_window`]).
+    pub fn fit_window(
+        &mut self,
+        img: &Image,
+        mask: Option<&Mask>,
+        window: Window,
+        start: [f64; 2],
+        hint: Option<&Gaussian2D>,
+        noise: &NoiseModel,
+    ) -> DotFit {
+        let flags = self.load_image(img, mask, window);
+        self.fit_loaded(flags, start, hint, noise)
+    }
+
+    /// Fits the dot in a window given as samples.
+    pub fn fit_samples(
+        &mut self,
+        s: &WindowSamples,
+        start: [f64; 2],
+        hint: Option<&Gaussian2D>,
+        noise: &NoiseModel,
+    ) -> DotFit {
+        let flags = self.load_samples(s);
+        self.fit_loaded(flags, start, hint, noise)
+    }
+
+    /// Loads the window's pixels into the workspace; returns the window flags.
+    pub(crate) fn load_image(
+        &mut self,
+        img: &Image,
+        mask: Option<&Mask>,
+        window: Window,
+    ) -> DotFlags {
+        let ws = &mut self.ws;
+        let (iw, ih) = (img.width(), img.height());
+        if mask.is_some_and(|m| !m.matches(img)) {
+            ws.resize(window.x, window.y, 0, 0);
+            ws.n_used = 0;
+            return DotFlags::MASKED;
+        }
+        let Some(c) = window.clip(iw, ih) else {
+            ws.resize(window.x, window.y, 0, 0);
+            ws.n_used = 0;
+            return DotFlags::BORDER;
+        };
+        let mut flags = DotFlags::NONE;
+        if c != window
+            || c.x == 0
+            || c.y == 0
+            || c.x as usize + c.width == iw
+            || c.y as usize + c.height == ih
+        {
+            flags |= DotFlags::BORDER;
+        }
+        ws.resize(c.x, c.y, c.width, c.height);
+        let mut n_used = 0;
+        for j in 0..c.height {
+            let y = c.y as usize + j;
+            let row = &img.row(y)[c.x as usize..c.x as usize + c.width];
+            for (i, &v) in row.iter().enumerate() {
+                let k = j * c.width + i;
+                let x = c.x as usize + i;
+                let usable = if !v.is_finite() {
+                    flags |= DotFlags::NAN_PIXELS;
+                    false
+                } else if mask.is_some_and(|m| !m.keeps(x, y)) {
+                    flags |= DotFlags::MASKED;
+                    false
+                } else if img.is_saturated(v) {
+                    flags |= DotFlags::SATURATED;
+                    false
+                } else {
+                    true
+                };
+                ws.data[k] = if usable { v } else { 0.0 };
+                ws.keep[k] = if usable { 1.0 } else { 0.0 };
+                n_used += usable as usize;
+            }
+        }
+        ws.n_used = n_used;
+        flags
+    }
+
+    pub(crate) fn load_samples(&mut self, s: &WindowSamples) -> DotFlags {
+        let ws = &mut self.ws;
+        let win = s.window;
+        if s.values.len() != win.len() || s.keep.is_some_and(|k| k.len() != win.len()) {
+            ws.resize(win.x, win.y, 0, 0);
+            ws.n_used = 0;
+            return DotFlags::NONE;
+        }
+        ws.resize(win.x, win.y, win.width, win.height);
+        let mut flags = DotFlags::NONE;
+        let mut n_used = 0;
+        for (k, &v) in s.values.iter().enumerate() {
+            let usable = if !v.is_finite() {
+                flags |= DotFlags::NAN_PIXELS;
+                false
+            } else if s.keep.is_some_and(|keep| !keep[k]) {
+                flags |= DotFlags::MASKED;
+                false
+            } else if s.saturation.is_some_and(|sat| v >= sat) {
+                flags |= DotFlags::SATURATED;
+                false
+            } else {
+                true
+            };
+            ws.data[k] = if usable { v } else { 0.0 };
+            ws.keep[k] = if usable { 1.0 } else { 0.0 };
+            n_used += usable as usize;
+        }
+        ws.n_used = n_used;
+        flags
+    }
+
+    /// Fits the pixels loaded in the workspace.
+    pub(crate) fn fit_loaded(
+        &mut self,
+        flags: DotFlags,
+        start: [f64; 2],
+        hint: Option<&Gaussian2D>,
+        noise: &NoiseModel,
+    ) -> DotFit {
+        let ws = &mut self.ws;
+        let centre = [
+            ws.wx as f64 + 0.5 * (ws.w as f64 - 1.0),
+            ws.wy as f64 + 0.5 * (ws.h as f64 - 1.0),
+        ];
+        let start = if start.iter().all(|v| v.is_finite()) {
+            start
+        } else {
+            centre
+        };
+        let bounds = Bounds::for_window(ws.wx, ws.wy, ws.w, ws.h);
+        let needed = match self.cfg.estimator {
+            Estimator::Lsg => self.kind.n_free() + 1,
+            Estimator::Iwc => 1,
+            Estimator::Tpg => 5,
+        };
+        if ws.n_used < needed {
+            return failed(FitStatus::TooFewPixels, flags, nan_params(start));
+        }
+        match self.cfg.estimator {
+            Estimator::Iwc => {
+                let Some(m) = moments(ws, start, self.cfg.sampling) else {
+                    return failed(FitStatus::Singular, flags, nan_params(start));
+                };
+                let g = gaussian_from_theta(&m.theta());
+                self.cheap_record(g, flags, noise)
+            }
+            Estimator::Tpg => match three_point(ws, start) {
+                Ok(t) => {
+                    if !bounds.inside(&t) {
+                        return failed(FitStatus::LeftWindow, flags, nan_params(start));
+                    }
+                    let mut g = gaussian_from_theta(&t);
+                    let mut rec = self.cheap_record(g, flags, noise);
+                    g.rho = f64::NAN; // not estimated
+                    rec.params = g;
+                    rec
+                }
+                Err(status) => failed(status, flags, nan_params(start)),
+            },
+            Estimator::Lsg => {
+                let theta0 = self.start_theta(start, hint, &bounds);
+                let mut out = self.solve(theta0, &bounds, noise);
+                if hint.is_some() && !out.status.is_ok() {
+                    // a warm start that went wrong: once more from the moments
+                    let theta0 = self.start_theta(start, None, &bounds);
+                    let again = self.solve(theta0, &bounds, noise);
+                    out = Outcome {
+                        iterations: out.iterations + again.iterations,
+                        ..again
+                    };
+                }
+                self.lsg_record(&out, flags)
+            }
+        }
+    }
+
+    fn solve(&mut self, theta0: Theta, bounds: &Bounds, noise: &NoiseModel) -> Outcome {
+        let mut out = match self.cfg.solver {
+            Solver::Fast => solve_fast(
+                &mut self.ws,
+                theta0,
+                self.kind,
+                self.cfg.sampling,
+                noise,
+                bounds,
+                self.cfg.max_iterations,
+                self.cfg.tolerance,
+            ),
+            Solver::LmCrate => solve_lm_crate(
+                &mut self.ws,
+                theta0,
+                self.kind,
+                self.cfg.sampling,
+                noise,
+                bounds,
+                self.cfg.max_iterations,
+                self.cfg.tolerance,
+            ),
+        };
+        out.bound = position_bound(&out.fisher, self.kind.n_free());
+        // a fit whose position bound exceeds a pixel holds no position information: no dot
+        if out.status.is_ok()
+            && !out
+                .bound
+                .is_some_and(|b| b[0] <= MAX_BOUND_PX && b[1] <= MAX_BOUND_PX)
+        {
+            out.status = FitStatus::Singular;
+        }
+        out
+    }
+
+    /// Start of the least-squares fit: the hint's shape at `start` if given, otherwise the
+    /// thresholded centroid and corrected second moments; projected into the bounds.
+    fn start_theta(
+        &mut self,
+        start: [f64; 2],
+        hint: Option<&Gaussian2D>,
+        bounds: &Bounds,
+    ) -> Theta {
+        let ws = &mut self.ws;
+        let mut t = match hint.filter(|h| h.is_valid()) {
+            Some(h) => {
+                let mut t = theta_from_gaussian(h);
+                t[IX] = start[0];
+                t[IY] = start[1];
+                t
+            }
+            None => match moments(ws, start, self.cfg.sampling) {
+                Some(m) => m.theta(),
+                None => {
+                    // no pixel above the background: a unit dot at the start
+                    let bg = crate::start::background(ws);
+                    [
+                        start[0],
+                        start[1],
+                        1.0,
+                        0.0,
+                        0.0,
+                        0.0,
+                        if bg.is_finite() { bg } else { 0.0 },
+                    ]
+                }
+            },
+        };
+        bounds.project(&mut t);
+        self.kind.constrain(&mut t);
+        t[IX] = t[IX].clamp(bounds.x_lo, bounds.x_hi);
+        t[IY] = t[IY].clamp(bounds.y_lo, bounds.y_hi);
+        if !t[IB].is_finite() {
+            t[IB] = 0.0;
+        }
+        t
+    }
+
+    fn lsg_record(&self, out: &Outcome, mut flags: DotFlags) -> DotFit {
+        let ws = &self.ws;
+        let mut status = out.status;
+        let mut params = gaussian_from_theta(&out.theta);
+        if !out.theta.iter().all(|v| v.is_finite()) || !params.is_valid() {
+            status = FitStatus::NonFinite;
+            params = nan_params([params.x0, params.y0]);
+        }
+        if out.at_bound {
+            flags |= DotFlags::AT_BOUND;
+        }
+        if !status.is_ok() {
+            flags |= DotFlags::FIT_FAILED;
+        }
+        let (crlb_x, crlb_y) = match out.bound {
+            Some(b) if self.cfg.bound && status != FitStatus::NonFinite => (b[0], b[1]),
+            _ => (f64::NAN, f64::NAN),
+        };
+        let rms = if ws.n_used > 0 {
+            (out.ssr / ws.n_used as f64).sqrt()
+        } else {
+            f64::NAN
+        };
+        DotFit {
+            index: GridIndex::new(0, 0),
+            params,
+            crlb_x,
+            crlb_y,
+            rms,
+            iterations: out.iterations,
+            status,
+            flags,
+        }
+    }
+
+    /// Record of IWC/TPG: the bound from `bostrack_model::crlb_masked` at the estimate, rms of
+    /// the estimate's model over the used pixels.
+    fn cheap_record(&self, g: Gaussian2D, flags: DotFlags, noise: &NoiseModel) -> DotFit {
+        let ws = &self.ws;
+        let win = Window::new(ws.wx, ws.wy, ws.w, ws.h);
+        let keep = |x: i64, y: i64| {
+            let (i, j) = (x - ws.wx, y - ws.wy);
+            i >= 0
+                && j >= 0
+                && (i as usize) < ws.w
+                && (j as usize) < ws.h
+                && ws.keep[j as usize * ws.w + i as usize] > 0.0
+        };
+        let (crlb_x, crlb_y) = if self.cfg.bound && g.is_valid() {
+            match bostrack_model::crlb_masked(
+                &g,
+                win,
+                noise,
+                self.cfg.sampling,
+                self.cfg.model,
+                &keep,
+            ) {
+                Some(b) => (b.std[0], b.std[1]),
+                None => (f64::NAN, f64::NAN),
+            }
+        } else {
+            (f64::NAN, f64::NAN)
+        };
+        let status = if g.x0.is_finite() && g.y0.is_finite() {
+            FitStatus::Converged
+        } else {
+            FitStatus::NonFinite
+        };
+        let mut flags = flags;
+        if !status.is_ok() {
+            flags |= DotFlags::FIT_FAILED;
+        }
+        DotFit {
+            index: GridIndex::new(0, 0),
+            params: g,
+            crlb_x,
+            crlb_y,
+            rms: f64::NAN,
+            iterations: 0,
+            status,
+            flags,
+        }
+    }
+}
+
+/// Parameters of a failed estimate: NaN everywhere (the status says why).
+fn nan_params(_start: [f64; 2]) -> Gaussian2D {
+    Gaussian2D {
+        x0: f64::NAN,
+        y0: f64::NAN,
+        amplitude: f64::NAN,
+        sigma_x: f64::NAN,
+        sigma_y: f64::NAN,
+        rho: f64::NAN,
+        background: f64::NAN,
+    }
+}
+
+fn failed(status: FitStatus, flags: DotFlags, params: Gaussian2D) -> DotFit {
+    DotFit {
+        index: GridIndex::new(0, 0),
+        params,
+        crlb_x: f64::NAN,
+        crlb_y: f64::NAN,
+        rms: f64::NAN,
+        iterations: 0,
+        status,
+        flags: flags | DotFlags::FIT_FAILED,
+    }
+}
+
+/// Fits one dot in `window` of `img` with `cfg`'s estimator, starting near `start` (px).
+///
+/// Pixels that are non-finite (flag `NAN_PIXELS`), masked (`MASKED`) or saturated
+/// (`SATURATED`, from `img.meta.saturation`) are left out; a window cut by the image edge is
+/// clipped and flagged `BORDER` (also when it merely touches the edge). `hint`, if valid,
+/// gives the starting shape (its centre is replaced by `start`); otherwise the fit starts from
+/// the thresholded centroid and the corrected second moments. The record's `index` is (0, 0):
+/// [`crate::fit_dots`] fills it from the seed.
+///
+/// Never panics and never returns a NaN without a failure status. A mask of another size than
+/// the image leaves no usable pixel (`TooFewPixels`, `MASKED`).
+pub fn fit_window(
+    img: &Image,
+    mask: Option<&Mask>,
+    window: Window,
+    start: [f64; 2],
+    hint: Option<&Gaussian2D>,
+    cfg: &FitConfig,
+    noise: &NoiseModel,
+) -> DotFit {
+    Fitter::new(cfg).fit_window(img, mask, window, start, hint, noise)
+}

@@ -1,0 +1,350 @@
+//! The specialised Levenberg-Marquardt solver: normal equations from one fused pass over the
+//! pixels, fixed-size arrays, no allocation.
+
+use crate::eval::{
+    IA, IT, IU, IV, IX, IY, Kind, Pass, Theta, Workspace, evaluate, gl_order, normal_equations,
+};
+use bostrack_core::{FitStatus, NoiseModel};
+use bostrack_model::Sampling;
+
+/// Box constraints of the internal parameters (documented in the crate doc).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Bounds {
+    pub u_min: f64,
+    pub u_max: f64,
+    pub t_max: f64,
+    pub amp_min: f64,
+    /// Pixel area of the window: the centre must stay in [x_lo, x_hi] × [y_lo, y_hi].
+    pub x_lo: f64,
+    pub x_hi: f64,
+    pub y_lo: f64,
+    pub y_hi: f64,
+}
+
+/// Smallest sigma (px) the fit may reach.
+pub(crate) const SIGMA_MIN: f64 = 0.1;
+/// Largest |ρ| the fit may reach.
+pub(crate) const RHO_MAX: f64 = 0.999;
+
+impl Bounds {
+    pub fn for_window(wx: i64, wy: i64, w: usize, h: usize) -> Bounds {
+        Bounds {
+            u_min: SIGMA_MIN.ln(),
+            u_max: (w.max(h) as f64).max(1.0).ln(),
+            t_max: RHO_MAX.atanh(),
+            amp_min: 1e-9,
+            x_lo: wx as f64 - 0.5,
+            x_hi: (wx + w as i64) as f64 - 0.5,
+            y_lo: wy as f64 - 0.5,
+            y_hi: (wy + h as i64) as f64 - 0.5,
+        }
+    }
+    /// Clamps the shape parameters and the amplitude; returns whether any was clamped.
+    pub fn project(&self, t: &mut Theta) -> bool {
+        let before = *t;
+        t[IU] = t[IU].clamp(self.u_min, self.u_max);
+        t[IV] = t[IV].clamp(self.u_min, self.u_max);
+        t[IT] = t[IT].clamp(-self.t_max, self.t_max);
+        t[IA] = t[IA].max(self.amp_min);
+        before != *t
+    }
+    /// Whether a shape parameter or the amplitude sits on its bound.
+    pub fn at_bound(&self, t: &Theta) -> bool {
+        let eps = 1e-9;
+        t[IU] <= self.u_min + eps
+            || t[IU] >= self.u_max - eps
+            || t[IV] <= self.u_min + eps
+            || t[IV] >= self.u_max - eps
+            || t[IT].abs() >= self.t_max - eps
+            || t[IA] <= self.amp_min * (1.0 + eps)
+    }
+    pub fn inside(&self, t: &Theta) -> bool {
+        t[IX] >= self.x_lo && t[IX] <= self.x_hi && t[IY] >= self.y_lo && t[IY] <= self.y_hi
+    }
+}
+
+/// Jacobi-scaled Cholesky factor of the leading n×n block of `N + λ diag N`.
+pub(crate) struct Factor {
+    l: [[f64; 7]; 7],
+    d: [f64; 7],
+    n: usize,
+}
+
+impl Factor {
+    /// `None` if a diagonal entry is not positive or a pivot falls below 1e-14 (relative to
+    /// the unit diagonal of the scaled matrix).
+    pub fn new(nm: &[[f64; 7]; 7], n: usize, lambda: f64) -> Option<Factor> {
+        let mut d = [0.0; 7];
+        for k in 0..n {
+            let v = nm[k][k];
+            if !(v > 0.0 && v.is_finite()) {
+                return None;
+            }
+            d[k] = 1.0 / v.sqrt();
+        }
+        let mut l = [[0.0; 7]; 7];
+        for j in 0..n {
+            let mut s = 1.0 + lambda;
+            for k in 0..j {
+                s -= l[j][k] * l[j][k];
+            }
+            if s.is_nan() || s <= 1e-14 {
+                return None;
+            }
+            let ljj = s.sqrt();
+            l[j][j] = ljj;
+            let inv = 1.0 / ljj;
+            for i in j + 1..n {
+                let mut s = nm[i][j] * d[i] * d[j];
+                for k in 0..j {
+                    s -= l[i][k] * l[j][k];
+                }
+                l[i][j] = s * inv;
+            }
+        }
+        Some(Factor { l, d, n })
+    }
+
+    pub fn solve(&self, g: &[f64; 7]) -> [f64; 7] {
+        let (l, d, n) = (&self.l, &self.d, self.n);
+        let mut y = [0.0; 7];
+        for i in 0..n {
+            let mut s = g[i] * d[i];
+            for k in 0..i {
+                s -= l[i][k] * y[k];
+            }
+            y[i] = s / l[i][i];
+        }
+        let mut x = [0.0; 7];
+        for i in (0..n).rev() {
+            let mut s = y[i];
+            for k in i + 1..n {
+                s -= l[k][i] * x[k];
+            }
+            x[i] = s / l[i][i];
+        }
+        for i in 0..n {
+            x[i] *= d[i];
+        }
+        x
+    }
+}
+
+/// Solves `(N + λ diag N) δ = g` for the leading `n × n` block. `None` if not positive definite.
+pub(crate) fn solve_damped(
+    nm: &[[f64; 7]; 7],
+    g: &[f64; 7],
+    n: usize,
+    lambda: f64,
+) -> Option<[f64; 7]> {
+    Factor::new(nm, n, lambda).map(|f| f.solve(g))
+}
+
+/// `sqrt((N⁻¹)₀₀)`, `sqrt((N⁻¹)₁₁)`: the bound of x0 and y0 (both free parameters come first).
+pub(crate) fn position_bound(nm: &[[f64; 7]; 7], n: usize) -> Option<[f64; 2]> {
+    let f = Factor::new(nm, n, 0.0)?;
+    let mut e = [0.0; 7];
+    e[0] = 1.0;
+    let x = f.solve(&e)[0];
+    e = [0.0; 7];
+    e[1] = 1.0;
+    let y = f.solve(&e)[1];
+    (x > 0.0 && y > 0.0).then(|| [x.sqrt(), y.sqrt()])
+}
+
+/// `xᵀ N x` over the leading n×n block.
+fn quad_form(nm: &[[f64; 7]; 7], x: &[f64; 7], n: usize) -> f64 {
+    let mut s = 0.0;
+    for i in 0..n {
+        for j in 0..n {
+            s += x[i] * nm[i][j] * x[j];
+        }
+    }
+    s
+}
+
+/// Outcome of a least-squares solve.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Outcome {
+    pub theta: Theta,
+    pub status: FitStatus,
+    pub iterations: u32,
+    pub at_bound: bool,
+    /// Normal matrix (Fisher information of the free parameters) at `theta`.
+    pub fisher: [[f64; 7]; 7],
+    /// Σ keep r² at `theta`.
+    pub ssr: f64,
+    /// Position bound from `fisher` (filled by the caller).
+    pub bound: Option<[f64; 2]>,
+}
+
+const LAMBDA_START: f64 = 1e-3;
+const LAMBDA_MIN: f64 = 1e-9;
+const LAMBDA_MAX: f64 = 1e10;
+
+/// Fills `w_cur` with `keep / read variance` (the weights before the first evaluation; with
+/// constant noise the passes use `keep` directly and the weights are not needed).
+pub(crate) fn initial_weights(ws: &mut Workspace, noise: &NoiseModel) {
+    if noise.is_constant() {
+        return;
+    }
+    let inv = 1.0 / noise.variance(f64::NEG_INFINITY);
+    let n = ws.len();
+    for k in 0..n {
+        ws.w_cur[k] = ws.keep[k] * inv;
+    }
+}
+
+/// Levenberg-Marquardt from `theta0` (already projected into the bounds).
+pub(crate) fn solve_fast(
+    ws: &mut Workspace,
+    theta0: Theta,
+    kind: Kind,
+    sampling: Sampling,
+    noise: &NoiseModel,
+    bounds: &Bounds,
+    max_iterations: u32,
+    tolerance: f64,
+) -> Outcome {
+    ws.gl_n = gl_order(theta0[IU].min(theta0[IV]).exp());
+    let out = lm_loop(
+        ws,
+        theta0,
+        kind,
+        sampling,
+        noise,
+        bounds,
+        max_iterations,
+        tolerance,
+    );
+    ws.gl_n = 0;
+    out
+}
+
+fn lm_loop(
+    ws: &mut Workspace,
+    theta0: Theta,
+    kind: Kind,
+    sampling: Sampling,
+    noise: &NoiseModel,
+    bounds: &Bounds,
+    max_iterations: u32,
+    tolerance: f64,
+) -> Outcome {
+    let n = kind.n_free();
+    let mut theta = theta0;
+    initial_weights(ws, noise);
+    let mut pass: Pass = evaluate(ws, &theta, sampling, kind, noise);
+    std::mem::swap(&mut ws.w_cur, &mut ws.w_new);
+    let mut cost = pass.cost_new;
+    let (mut nm, mut g) = normal_equations(kind, &theta, &pass);
+    let outcome = |theta: Theta, status, iterations, nm, ssr| Outcome {
+        theta,
+        status,
+        iterations,
+        at_bound: bounds.at_bound(&theta),
+        fisher: nm,
+        ssr,
+        bound: None,
+    };
+    if !pass.finite {
+        return outcome(theta, FitStatus::NonFinite, 0, nm, pass.ssr);
+    }
+    let tol2 = tolerance * tolerance;
+    let mut lambda = LAMBDA_START;
+    let mut left;
+    for it in 1..=max_iterations {
+        let Some(step) = solve_damped(&nm, &g, n, lambda) else {
+            lambda *= 10.0;
+            if lambda > LAMBDA_MAX {
+                return outcome(theta, FitStatus::Singular, it, nm, pass.ssr);
+            }
+            continue;
+        };
+        let mut trial = kind.apply_step(&theta, &step);
+        let clamped = bounds.project(&mut trial);
+        kind.constrain(&mut trial);
+        let finite = trial.iter().all(|v| v.is_finite());
+        let accepted = if !finite || !bounds.inside(&trial) {
+            left = finite;
+            false
+        } else {
+            left = false;
+            let p = evaluate(ws, &trial, sampling, kind, noise);
+            if p.finite && p.cost_cur <= cost {
+                // the step actually taken (after projection), in free coordinates
+                let mut taken = [0.0; 7];
+                for (k, &idx) in kind.free().iter().enumerate() {
+                    taken[k] = trial[idx] - theta[idx];
+                }
+                let m2 = quad_form(&nm, &taken, n);
+                let damped = lambda > 1.0;
+                theta = trial;
+                cost = p.cost_new;
+                pass = p;
+                std::mem::swap(&mut ws.w_cur, &mut ws.w_new);
+                (nm, g) = normal_equations(kind, &theta, &pass);
+                lambda = (lambda * 0.1).max(LAMBDA_MIN);
+                if m2 <= tol2 && !damped {
+                    return outcome(theta, FitStatus::Converged, it, nm, pass.ssr);
+                }
+                true
+            } else {
+                false
+            }
+        };
+        if !accepted {
+            lambda *= 10.0;
+            if lambda > LAMBDA_MAX {
+                if left {
+                    return outcome(theta, FitStatus::LeftWindow, it, nm, pass.ssr);
+                }
+                // no step lowers the cost: a (possibly constrained) minimum to rounding
+                let gn = solve_damped(&nm, &g, n, 0.0);
+                let small = gn.is_some_and(|d| quad_form(&nm, &d, n) <= 100.0 * tol2);
+                let status = if small || clamped || bounds.at_bound(&theta) {
+                    FitStatus::Converged
+                } else {
+                    FitStatus::Singular
+                };
+                return outcome(theta, status, it, nm, pass.ssr);
+            }
+        }
+    }
+    outcome(
+        theta,
+        FitStatus::IterationLimit,
+        max_iterations,
+        nm,
+        pass.ssr,
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn damped_solve_and_inverse() {
+        let mut nm = [[0.0; 7]; 7];
+        let a = [[4.0, 1.0, 0.5], [1.0, 3.0, 0.2], [0.5, 0.2, 2.0]];
+        for i in 0..3 {
+            for j in 0..3 {
+                nm[i][j] = a[i][j];
+            }
+        }
+        let g = [1.0, 2.0, 3.0, 0.0, 0.0, 0.0, 0.0];
+        let x = solve_damped(&nm, &g, 3, 0.0).unwrap();
+        for i in 0..3 {
+            let r: f64 = (0..3).map(|j| a[i][j] * x[j]).sum();
+            assert!((r - g[i]).abs() < 1e-12);
+        }
+        let d = position_bound(&nm, 3).unwrap();
+        // inverse of a 3x3 by cofactors: (A⁻¹)_00 = (a11 a22 - a12²) / det
+        let det = 4.0 * (3.0 * 2.0 - 0.04) - 1.0 * (2.0 - 0.1) + 0.5 * (0.2 - 1.5);
+        assert!((d[0] * d[0] - (3.0 * 2.0 - 0.04) / det).abs() < 1e-12);
+        assert!((d[1] * d[1] - (4.0 * 2.0 - 0.25) / det).abs() < 1e-12);
+        nm[2][2] = 0.0;
+        assert!(solve_damped(&nm, &g, 3, 0.0).is_none());
+    }
+}

@@ -1,0 +1,61 @@
+//! Shared helpers of the integration tests: synthetic windows with known noise.
+#![allow(dead_code)]
+
+use bostrack_core::{Gaussian2D, NoiseModel, Window};
+use bostrack_fit::WindowSamples;
+use bostrack_model::{Sampling, render};
+use rand::rngs::StdRng;
+use rand::{RngExt, SeedableRng};
+use rand_distr::StandardNormal;
+
+pub fn rng(seed: u64) -> StdRng {
+    StdRng::seed_from_u64(seed)
+}
+
+/// The model over `window` plus Gaussian noise of the model's variance.
+pub fn noisy(
+    g: &Gaussian2D,
+    window: Window,
+    sampling: Sampling,
+    noise: &NoiseModel,
+    rng: &mut StdRng,
+) -> Vec<f64> {
+    let mut v = render(g, window, sampling);
+    for x in v.iter_mut() {
+        let z: f64 = rng.sample(StandardNormal);
+        *x += noise.sigma(*x) * z;
+    }
+    v
+}
+
+pub fn samples(window: Window, values: &[f64]) -> WindowSamples<'_> {
+    WindowSamples {
+        window,
+        values,
+        keep: None,
+        saturation: None,
+    }
+}
+
+/// A dot at a random sub-pixel position near the centre of a (2 half + 1)² window at the origin.
+pub fn random_dot(
+    rng: &mut StdRng,
+    half: usize,
+    amplitude: f64,
+    sx: f64,
+    sy: f64,
+    rho: f64,
+    bg: f64,
+) -> (Gaussian2D, Window) {
+    let c = half as f64;
+    let g = Gaussian2D {
+        x0: c + rng.random_range(-0.5..0.5),
+        y0: c + rng.random_range(-0.5..0.5),
+        amplitude,
+        sigma_x: sx,
+        sigma_y: sy,
+        rho,
+        background: bg,
+    };
+    (g, Window::new(0, 0, 2 * half + 1, 2 * half + 1))
+}

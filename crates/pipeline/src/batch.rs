@@ -1,0 +1,780 @@
+//! Batch processing of a campaign: every gradient frame of a [`Plan`], in parallel, with
+//! resumable, atomic per-frame outputs, a campaign summary and figures; shards for clusters and
+//! their merge.
+//!
+//! Output folder `DIR` ([`run_batch`]):
+//!
+//! ```text
+//! DIR/run.toml              run record: version, inputs, fully resolved configuration
+//! DIR/<stem>/dots.csv       per dot of frame <stem> (columns: bostrack_displacement::COLUMNS)
+//! DIR/<stem>/summary.json   per-frame summary; written last: its presence marks the frame done
+//! DIR/<stem>/*.png|svg      per-frame figures, then figures.json (what was drawn or skipped)
+//! DIR/campaign.csv, .json   one row per frame: status, counts, medians, then timings (*_s)
+//! DIR/failures.json         the frames that failed, each with its file and the reason
+//! DIR/campaign.png|svg, DIR/detections.png|svg   campaign figures
+//! DIR/shards/shard-K-of-N.toml, .json   the record and outcome of shard K of N
+//! ```
+//!
+//! **Frames are numbered from 1** in natural order of their file names (`frame2` before
+//! `frame10`). A run with `--shard K/N` ([`Shard`]) processes frames `n` with
+//! `(n - 1) mod N = K - 1` and writes only those frames and its own records under
+//! `DIR/shards/`; [`merge_campaign`] builds the campaign files from whatever frames are
+//! complete. An unsharded run ends with the same merge, so the campaign files of N merged
+//! shards equal those of one run (apart from the timing columns).
+//!
+//! **Resumable and idempotent.** A frame whose `summary.json` exists (and whose requested
+//! figures are recorded in `figures.json`) is skipped; `force` recomputes it. Every file is
+//! written under a temporary name and renamed, and a killed run's temporaries are removed when
+//! the frame is next computed, so an interrupted run leaves no half-written frame. A folder
+//! written with another configuration (detection, fit, matching, uncertainty, reference, stack
+//! or mask) is refused unless `force`; added gradient frames are simply computed.
+//!
+//! **Failures are data.** A frame that cannot be processed (unreadable file, no dots) is
+//! recorded with its reason in `failures.json`; the other frames finish. Only configuration
+//! and reference-side problems stop a run ([`BatchError`]).
+//!
+//! **Deterministic.** Frames are independent and every output is written per frame, so the
+//! outputs do not depend on the number of threads (the caller's rayon pool).
+//!
+//! **Flat memory.** Frames are streamed: a worker holds one frame at a time and drops it once
+//! written; the campaign files are built from the per-frame files.
+
+pub(crate) mod campaign;
+pub(crate) mod dots;
+pub(crate) mod fsx;
+pub(crate) mod record;
+mod shard;
+
+pub use shard::{Shard, ShardError};
+
+use crate::error::{ConfigError, PipelineError};
+use crate::figures::{FigureSetup, FigureSpec, draw_frame_figures};
+use crate::pair::{ReferenceContext, frame_is_complete, process_frame, write_frame};
+use crate::plan::{Plan, ReferenceImage};
+use rayon::prelude::*;
+use record::{RUN_RECORD, RunRecord, SHARDS_DIR};
+use serde::{Deserialize, Serialize};
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// What stops a batch command: configuration, reference-side or output-folder problems. A
+/// single frame's problem is never one of these (it is a [`FrameFailure`]).
+#[derive(Debug, thiserror::Error)]
+pub enum BatchError {
+    /// The configuration or the files it names.
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    /// The reference side of the campaign could not be prepared.
+    #[error(transparent)]
+    Pipeline(#[from] PipelineError),
+    /// An image or mask needed for the figures could not be read.
+    #[error(transparent)]
+    Io(#[from] bostrack_io::IoError),
+    /// A file or folder could not be written.
+    #[error("{}: cannot write: {source}", path.display())]
+    Write {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    /// A file could not be read.
+    #[error("{}: cannot read: {source}", path.display())]
+    Read {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    /// A file of an output folder is not what bostrack writes.
+    #[error("{}: {message}", path.display())]
+    Corrupt { path: PathBuf, message: String },
+    /// The frames of the campaign cannot be given one output folder each.
+    #[error("{}: {message}", path.display())]
+    Frames { path: PathBuf, message: String },
+    /// The output folder holds results of another configuration.
+    #[error(
+        "{}: the output folder holds results of another configuration ({what} differs); use \
+         --force (or output.overwrite = true) to recompute every frame, or another output folder",
+        path.display()
+    )]
+    Mismatch { path: PathBuf, what: String },
+    /// The records of an output folder disagree (shards run with different configurations).
+    #[error(
+        "{} and {} disagree ({what} differs): rerun the shards with one configuration (--force)",
+        first.display(),
+        second.display()
+    )]
+    RecordsDisagree {
+        first: PathBuf,
+        second: PathBuf,
+        what: String,
+    },
+    /// A folder without any run record.
+    #[error(
+        "{}: no run record ({RUN_RECORD} or {SHARDS_DIR}/shard-K-of-N.toml): not a bostrack run folder",
+        dir.display()
+    )]
+    NoRecord { dir: PathBuf },
+}
+
+/// How a batch run is asked to behave.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct BatchOptions {
+    /// Output folder; `None`: the plan's `output.dir`.
+    pub out_dir: Option<PathBuf>,
+    /// Recompute every frame, even complete ones, and accept a folder written with another
+    /// configuration (also set by `output.overwrite`).
+    pub force: bool,
+    /// Process only this shard's frames.
+    pub shard: Option<Shard>,
+}
+
+/// What happened to one frame.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum FrameStatus {
+    /// Processed and written.
+    Computed,
+    /// Its outputs were complete but some requested figures were missing: drawn.
+    FiguresDrawn,
+    /// Complete already: nothing done.
+    Skipped,
+    /// Could not be processed (see [`FrameFailure`]).
+    Failed,
+}
+
+/// One frame's outcome, as reported to [`Progress::frame_done`].
+#[derive(Clone, Copy, Debug)]
+pub struct FrameEvent<'a> {
+    /// Frame number, from 1.
+    pub frame: usize,
+    pub stem: &'a str,
+    pub status: FrameStatus,
+    /// The reason of a failure.
+    pub error: Option<&'a str>,
+    /// Wall time spent on it (s).
+    pub seconds: f64,
+}
+
+/// Receives the progress of a batch run (called from worker threads).
+pub trait Progress: Sync {
+    /// Before the first frame: frames to work on and frames skipped as complete.
+    fn start(&self, _to_do: usize, _skipped: usize) {}
+    /// After each frame that was worked on.
+    fn frame_done(&self, _event: &FrameEvent<'_>) {}
+    /// A warning that does not stop anything (e.g. a figure with nothing to plot).
+    fn note(&self, _message: &str) {}
+    /// After the last frame.
+    fn finish(&self) {}
+}
+
+/// A [`Progress`] that reports nothing.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Silent;
+
+impl Progress for Silent {}
+
+/// A frame that could not be processed.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct FrameFailure {
+    /// Frame number, from 1.
+    pub frame: usize,
+    pub stem: String,
+    /// The gradient image.
+    pub file: PathBuf,
+    /// Why (names the file and the problem).
+    pub reason: String,
+}
+
+/// What a batch run did.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BatchReport {
+    /// The output folder.
+    pub out_dir: PathBuf,
+    /// Frames of the campaign (all shards).
+    pub campaign_frames: usize,
+    /// Frames of this run (this shard's share).
+    pub frames: usize,
+    pub computed: usize,
+    pub figures_drawn: usize,
+    pub skipped: usize,
+    /// Frames of this run that failed, in frame order.
+    pub failures: Vec<FrameFailure>,
+    /// Wall time of the run (s).
+    pub seconds: f64,
+    /// Whether the campaign files were written (not by a shard).
+    pub campaign_written: bool,
+}
+
+/// What a merge found.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MergeReport {
+    pub out_dir: PathBuf,
+    /// Frames of the campaign (union of the records' frames).
+    pub frames: usize,
+    /// Frames with complete outputs.
+    pub complete: usize,
+    /// Frames without complete outputs, with the recorded reason (or "not processed").
+    pub failures: Vec<FrameFailure>,
+    /// Run records found.
+    pub records: usize,
+    /// Frames whose missing figures were drawn.
+    pub figures_drawn: usize,
+}
+
+/// A gradient frame of the campaign.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub(crate) struct FrameRef {
+    /// From 1, natural order.
+    pub number: usize,
+    pub stem: String,
+    pub path: PathBuf,
+}
+
+impl FrameRef {
+    /// The title naming the frame in its figures.
+    pub fn title(&self, total: usize) -> String {
+        let name = self
+            .path
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_else(|| self.stem.clone());
+        format!("{name} (frame {} of {total})", self.number)
+    }
+}
+
+/// Numbers the frames from 1 and gives each its output folder name (the file stem), refusing
+/// names that two frames share or that would collide with the run's own files.
+pub(crate) fn frame_refs(paths: &[PathBuf], source: &Path) -> Result<Vec<FrameRef>, BatchError> {
+    let mut seen: HashMap<String, &Path> = HashMap::new();
+    let mut out = Vec::with_capacity(paths.len());
+    for (k, p) in paths.iter().enumerate() {
+        let stem = p
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let bad = |message: String| BatchError::Frames {
+            path: source.to_path_buf(),
+            message,
+        };
+        if stem.is_empty() || stem.starts_with('.') || stem == SHARDS_DIR {
+            return Err(bad(format!(
+                "{}: a frame's output folder is named after its file stem, and `{stem}` cannot be \
+                 one (empty, hidden or reserved); rename the file or narrow input.gradient_glob",
+                p.display()
+            )));
+        }
+        if let Some(other) = seen.insert(stem.clone(), p) {
+            return Err(bad(format!(
+                "{} and {} share the stem `{stem}` (each frame's outputs go to DIR/<stem>/); \
+                 narrow input.gradient_glob",
+                other.display(),
+                p.display()
+            )));
+        }
+        out.push(FrameRef {
+            number: k + 1,
+            stem,
+            path: p.clone(),
+        });
+    }
+    Ok(out)
+}
+
+/// What to do with one frame.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Action {
+    Compute,
+    Figures,
+    Skip,
+}
+
+/// Runs a campaign (or one shard of it) into its output folder, in the current rayon pool
+/// (install the pool with the wanted number of threads around the call).
+///
+/// Returns the report; frames that failed are in [`BatchReport::failures`] (the command's exit
+/// code 2). Errors only for the configuration, the reference side, an output folder written
+/// with another configuration (unless `force`) or an output folder that cannot be written.
+pub fn run_batch(
+    plan: &Plan,
+    options: &BatchOptions,
+    progress: &dyn Progress,
+) -> Result<BatchReport, BatchError> {
+    let t0 = Instant::now();
+    let out = options
+        .out_dir
+        .clone()
+        .unwrap_or_else(|| plan.output.dir.clone());
+    let frames = frame_refs(&plan.gradients, &plan.config_file)?;
+    let mine: Vec<&FrameRef> = frames
+        .iter()
+        .filter(|f| options.shard.is_none_or(|s| s.contains(f.number)))
+        .collect();
+    fsx::create_dir(&out)?;
+    let force = options.force || plan.output.overwrite;
+    let jobs = rayon::current_num_threads();
+    let mut record = RunRecord::new(plan, &out, options.shard, jobs)?;
+    if !force {
+        for path in record::record_files(&out) {
+            let old = RunRecord::read(&path)?;
+            if let Some(what) = record.differs_from(&old) {
+                return Err(BatchError::Mismatch { path, what });
+            }
+        }
+    }
+
+    let spec = FigureSpec {
+        figures: plan.output.figures.clone(),
+        formats: plan.output.figure_formats.clone(),
+    };
+    let actions: Vec<Action> = mine
+        .iter()
+        .map(|f| {
+            if force || !frame_is_complete(&out, &f.stem) {
+                Action::Compute
+            } else if !spec.frame_complete(&out.join(&f.stem)) {
+                Action::Figures
+            } else {
+                Action::Skip
+            }
+        })
+        .collect();
+    let n_compute = actions.iter().filter(|a| **a == Action::Compute).count();
+    let n_skip = actions.iter().filter(|a| **a == Action::Skip).count();
+
+    let ctx = if n_compute > 0 {
+        Some(ReferenceContext::prepare(plan)?)
+    } else {
+        None
+    };
+    let record_path = match options.shard {
+        None => out.join(RUN_RECORD),
+        Some(s) => out.join(SHARDS_DIR).join(format!("{}.toml", s.label())),
+    };
+    if let Some(ctx) = &ctx {
+        let (width, height) = ctx.image_size();
+        record.image = Some(record::ImageSize { width, height });
+        record.reference = json_to_toml_table(&ctx.summary());
+    }
+    if ctx.is_some() || !record_path.is_file() {
+        if let Some(parent) = record_path.parent() {
+            fsx::create_dir(parent)?;
+        }
+        record.write(&record_path)?;
+    }
+
+    let needs_figures =
+        spec.has_frame_figures() && actions.iter().any(|a| *a != Action::Skip);
+    let setup = if needs_figures || (options.shard.is_none() && spec.has_campaign_figures()) {
+        Some(figure_setup(
+            spec.clone(),
+            ctx.as_ref(),
+            record.image,
+            &reference_file(plan),
+            plan.mask.as_deref(),
+        )?)
+    } else {
+        None
+    };
+
+    progress.start(mine.len() - n_skip, n_skip);
+    let total = frames.len();
+    let outcomes: Vec<(FrameStatus, Option<String>)> = mine
+        .par_iter()
+        .zip(actions.par_iter())
+        .map(|(f, action)| {
+            if *action == Action::Skip {
+                return (FrameStatus::Skipped, None);
+            }
+            let t = Instant::now();
+            let result = match action {
+                Action::Compute => compute_frame(
+                    ctx.as_ref().expect("prepared when a frame is computed"),
+                    plan,
+                    &out,
+                    f,
+                    &f.title(total),
+                    setup.as_ref(),
+                    progress,
+                )
+                .map(|()| FrameStatus::Computed),
+                _ => draw_figures(&out, f, &f.title(total), setup.as_ref(), progress)
+                    .map(|()| FrameStatus::FiguresDrawn),
+            };
+            let (status, error) = match result {
+                Ok(s) => (s, None),
+                Err(reason) => (FrameStatus::Failed, Some(reason)),
+            };
+            progress.frame_done(&FrameEvent {
+                frame: f.number,
+                stem: &f.stem,
+                status,
+                error: error.as_deref(),
+                seconds: t.elapsed().as_secs_f64(),
+            });
+            (status, error)
+        })
+        .collect();
+    progress.finish();
+    drop(ctx);
+
+    let count = |s: FrameStatus| outcomes.iter().filter(|o| o.0 == s).count();
+    let failures: Vec<FrameFailure> = mine
+        .iter()
+        .zip(&outcomes)
+        .filter_map(|(f, (_, e))| {
+            e.as_ref().map(|reason| FrameFailure {
+                frame: f.number,
+                stem: f.stem.clone(),
+                file: f.path.clone(),
+                reason: reason.clone(),
+            })
+        })
+        .collect();
+    let mut report = BatchReport {
+        out_dir: out.clone(),
+        campaign_frames: total,
+        frames: mine.len(),
+        computed: count(FrameStatus::Computed),
+        figures_drawn: count(FrameStatus::FiguresDrawn),
+        skipped: count(FrameStatus::Skipped),
+        failures,
+        seconds: 0.0,
+        campaign_written: false,
+    };
+    match options.shard {
+        Some(s) => {
+            let outcome = ShardOutcome {
+                shard: s.to_string(),
+                frames: mine.iter().map(|f| f.number).collect(),
+                failures: report.failures.clone(),
+            };
+            let path = out.join(SHARDS_DIR).join(format!("{}.json", s.label()));
+            write_json(&path, &outcome)?;
+        }
+        None => {
+            let reasons: HashMap<String, String> = report
+                .failures
+                .iter()
+                .map(|f| (f.stem.clone(), f.reason.clone()))
+                .collect();
+            let title = campaign_title(&plan.config_file);
+            campaign::build(
+                &out,
+                &frames,
+                &reasons,
+                &spec,
+                setup.as_ref(),
+                &title,
+                progress,
+            )?;
+            report.campaign_written = true;
+        }
+    }
+    report.seconds = t0.elapsed().as_secs_f64();
+    Ok(report)
+}
+
+/// The outcome of one shard: `DIR/shards/shard-K-of-N.json`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub(crate) struct ShardOutcome {
+    pub shard: String,
+    /// Frame numbers of the shard.
+    pub frames: Vec<usize>,
+    pub failures: Vec<FrameFailure>,
+}
+
+fn campaign_title(config_file: &Path) -> String {
+    let name = config_file
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "campaign".into());
+    format!("Campaign {name}")
+}
+
+/// Computes, writes and draws one frame; the error is the failure reason.
+fn compute_frame(
+    ctx: &ReferenceContext,
+    plan: &Plan,
+    out: &Path,
+    f: &FrameRef,
+    title: &str,
+    setup: Option<&FigureSetup>,
+    progress: &dyn Progress,
+) -> Result<(), String> {
+    fsx::remove_stale_temporaries(out, &f.stem);
+    let _ = std::fs::remove_file(out.join(&f.stem).join(crate::figures::FIGURES_RECORD));
+    let result = process_frame(ctx, plan, &f.path).map_err(|e| e.to_string())?;
+    write_frame(out, &result).map_err(|e| e.to_string())?;
+    drop(result);
+    draw_figures(out, f, title, setup, progress)
+}
+
+fn draw_figures(
+    out: &Path,
+    f: &FrameRef,
+    title: &str,
+    setup: Option<&FigureSetup>,
+    progress: &dyn Progress,
+) -> Result<(), String> {
+    let Some(setup) = setup else { return Ok(()) };
+    let dir = out.join(&f.stem);
+    fsx::remove_stale_files(&dir);
+    let notes = draw_frame_figures(&dir, title, setup).map_err(|e| format!("figures: {e}"))?;
+    for n in notes {
+        progress.note(&n);
+    }
+    Ok(())
+}
+
+/// The reference image file to probe for the image size when no reference context exists.
+fn reference_file(plan: &Plan) -> Option<PathBuf> {
+    match &plan.reference {
+        ReferenceImage::File(p) => Some(p.clone()),
+        ReferenceImage::StackMean => plan.stack.first().cloned(),
+    }
+}
+
+/// The figure setup: size and mask from the reference context, else from the record, else
+/// from the files.
+fn figure_setup(
+    spec: FigureSpec,
+    ctx: Option<&ReferenceContext>,
+    size: Option<record::ImageSize>,
+    reference: &Option<PathBuf>,
+    mask: Option<&Path>,
+) -> Result<FigureSetup, BatchError> {
+    if let Some(ctx) = ctx {
+        let (width, height) = ctx.image_size();
+        return Ok(FigureSetup {
+            spec,
+            width,
+            height,
+            mask: ctx.mask().cloned(),
+        });
+    }
+    let (width, height) = match (size, reference) {
+        (Some(s), _) => (s.width, s.height),
+        (None, Some(p)) => {
+            let info = bostrack_io::probe(p)?;
+            (info.width, info.height)
+        }
+        (None, None) => (0, 0),
+    };
+    let mask = match mask {
+        Some(p) => Some(bostrack_io::read_mask_for(p, width, height)?),
+        None => None,
+    };
+    Ok(FigureSetup {
+        spec,
+        width,
+        height,
+        mask,
+    })
+}
+
+/// Rebuilds the campaign files of an output folder (`campaign.csv`, `campaign.json`,
+/// `failures.json`, campaign figures) from its per-frame outputs and run records, drawing any
+/// missing per-frame figures; writes `run.toml` from the shard records when it is absent.
+///
+/// The frames are the union of the records' frames (natural order); a frame without complete
+/// outputs is a failure, with the reason a shard recorded or "not processed". Runs in the
+/// current rayon pool.
+pub fn merge_campaign(out_dir: &Path, progress: &dyn Progress) -> Result<MergeReport, BatchError> {
+    let records = record::read_records(out_dir)?;
+    let Some((first_path, first)) = records.first() else {
+        return Err(BatchError::NoRecord {
+            dir: out_dir.to_path_buf(),
+        });
+    };
+    for (path, r) in &records[1..] {
+        if let Some(what) = first.differs_from(r) {
+            return Err(BatchError::RecordsDisagree {
+                first: first_path.clone(),
+                second: path.clone(),
+                what,
+            });
+        }
+    }
+    let paths = record::union_of_frames(records.iter().map(|(_, r)| r));
+    let frames = frame_refs(&paths, first_path)?;
+    let (figures, formats) = first.figures();
+    let spec = FigureSpec { figures, formats };
+
+    // Per-frame figures that are missing.
+    let missing: Vec<&FrameRef> = frames
+        .iter()
+        .filter(|f| {
+            frame_is_complete(out_dir, &f.stem) && !spec.frame_complete(&out_dir.join(&f.stem))
+        })
+        .collect();
+    let setup = if !missing.is_empty() || spec.has_campaign_figures() {
+        let size = records.iter().find_map(|(_, r)| r.image);
+        let reference = first
+            .inputs
+            .reference
+            .clone()
+            .or_else(|| first.inputs.stack.first().cloned());
+        Some(figure_setup(
+            spec.clone(),
+            None,
+            size,
+            &reference,
+            first.inputs.mask.as_deref(),
+        )?)
+    } else {
+        None
+    };
+    let total = frames.len();
+    progress.start(missing.len(), total - missing.len());
+    let drawn: Vec<Result<(), String>> = missing
+        .par_iter()
+        .map(|f| {
+            let t = Instant::now();
+            let r = draw_figures(out_dir, f, &f.title(total), setup.as_ref(), progress);
+            progress.frame_done(&FrameEvent {
+                frame: f.number,
+                stem: &f.stem,
+                status: if r.is_ok() {
+                    FrameStatus::FiguresDrawn
+                } else {
+                    FrameStatus::Failed
+                },
+                error: r.as_ref().err().map(String::as_str),
+                seconds: t.elapsed().as_secs_f64(),
+            });
+            r
+        })
+        .collect();
+    progress.finish();
+
+    // Reasons recorded by earlier runs and shards, the latest shard outcome last.
+    let mut reasons: HashMap<String, String> = HashMap::new();
+    if let Ok(bytes) = std::fs::read(out_dir.join(campaign::FAILURES)) {
+        if let Ok(f) = serde_json::from_slice::<campaign::FailuresFile>(&bytes) {
+            for x in f.failures {
+                reasons.insert(x.stem, x.reason);
+            }
+        }
+    }
+    if let Ok(files) = crate::files::list_matching(&out_dir.join(SHARDS_DIR), "shard-*-of-*.json")
+    {
+        for p in files {
+            if let Ok(bytes) = std::fs::read(&p) {
+                if let Ok(o) = serde_json::from_slice::<ShardOutcome>(&bytes) {
+                    for x in o.failures {
+                        reasons.insert(x.stem, x.reason);
+                    }
+                }
+            }
+        }
+    }
+    for (f, r) in missing.iter().zip(&drawn) {
+        if let Err(e) = r {
+            reasons.insert(f.stem.clone(), e.clone());
+        }
+    }
+    let title = campaign_title(&first.inputs.config_file);
+    let built = campaign::build(
+        out_dir,
+        &frames,
+        &reasons,
+        &spec,
+        setup.as_ref(),
+        &title,
+        progress,
+    )?;
+
+    let run_path = out_dir.join(RUN_RECORD);
+    if !run_path.is_file() {
+        let mut merged = first.clone();
+        merged.kind = "merge".into();
+        merged.shard = None;
+        merged.jobs = 0;
+        merged.merged_from = records
+            .iter()
+            .filter_map(|(p, _)| p.file_name().map(|n| n.to_string_lossy().into_owned()))
+            .collect();
+        merged.inputs.gradients = paths.clone();
+        merged.write(&run_path)?;
+    }
+    Ok(MergeReport {
+        out_dir: out_dir.to_path_buf(),
+        frames: total,
+        complete: total - built.failures.len(),
+        failures: built.failures,
+        records: records.len(),
+        figures_drawn: drawn.iter().filter(|r| r.is_ok()).count(),
+    })
+}
+
+fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<(), BatchError> {
+    if let Some(parent) = path.parent() {
+        fsx::create_dir(parent)?;
+    }
+    let mut bytes = serde_json::to_vec_pretty(value).map_err(|e| BatchError::Corrupt {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    })?;
+    bytes.push(b'\n');
+    fsx::write_atomic(path, &bytes)
+}
+
+/// A JSON object as a TOML table (nulls, which TOML cannot hold, are left out).
+fn json_to_toml_table(v: &serde_json::Value) -> Option<toml::Table> {
+    match json_to_toml(v)? {
+        toml::Value::Table(t) => Some(t),
+        _ => None,
+    }
+}
+
+fn json_to_toml(v: &serde_json::Value) -> Option<toml::Value> {
+    use serde_json::Value as J;
+    Some(match v {
+        J::Null => return None,
+        J::Bool(b) => toml::Value::Boolean(*b),
+        J::Number(n) => match n.as_i64() {
+            Some(i) => toml::Value::Integer(i),
+            None => toml::Value::Float(n.as_f64()?),
+        },
+        J::String(s) => toml::Value::String(s.clone()),
+        J::Array(a) => toml::Value::Array(a.iter().filter_map(json_to_toml).collect()),
+        J::Object(o) => toml::Value::Table(
+            o.iter()
+                .filter_map(|(k, v)| json_to_toml(v).map(|v| (k.clone(), v)))
+                .collect(),
+        ),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn frames_are_numbered_and_stems_checked() {
+        let src = Path::new("p.toml");
+        let f = frame_refs(
+            &[PathBuf::from("g/a1.tif"), PathBuf::from("g/a2.tif")],
+            src,
+        )
+        .unwrap();
+        assert_eq!((f[0].number, f[1].number), (1, 2));
+        assert_eq!(f[1].stem, "a2");
+        assert_eq!(f[1].title(9), "a2.tif (frame 2 of 9)");
+        let e = frame_refs(&[PathBuf::from("g/a.tif"), PathBuf::from("h/a.png")], src)
+            .unwrap_err();
+        assert!(e.to_string().contains("share the stem `a`"), "{e}");
+        let e = frame_refs(&[PathBuf::from("g/shards.tif")], src).unwrap_err();
+        assert!(e.to_string().contains("reserved"), "{e}");
+    }
+
+    #[test]
+    fn json_becomes_toml_without_nulls() {
+        let v = serde_json::json!({"a": 1, "b": null, "c": [1.5, null], "d": {"e": "x"}});
+        let t = json_to_toml_table(&v).unwrap();
+        assert_eq!(
+            toml::to_string(&t).unwrap(),
+            "a = 1\nc = [1.5]\n\n[d]\ne = \"x\"\n"
+        );
+        assert!(json_to_toml_table(&serde_json::json!([1])).is_none());
+    }
+}

@@ -1,0 +1,252 @@
+//! `pipeline.toml` as written: the first of the two configuration levels.
+//!
+//! Every struct here rejects unknown keys (`deny_unknown_fields` is not inherited, so it is on
+//! each one) and fills missing keys from its `Default`, which is the single place a default is
+//! written. The annotated template ([`crate::template`]) is generated from these defaults.
+
+use serde::{Deserialize, Serialize};
+use std::path::PathBuf;
+
+/// A whole campaign configuration, one section per stage.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PipelineConfig {
+    pub input: InputConfig,
+    pub detect: DetectSection,
+    pub fit: FitSection,
+    /// `[match]` in the file (`match` is a Rust keyword).
+    #[serde(rename = "match")]
+    pub matching: MatchConfig,
+    pub uncertainty: UncertaintyConfig,
+    pub output: OutputConfig,
+    pub run: RunConfig,
+}
+
+impl PipelineConfig {
+    /// The default configuration with the campaign folder `input.dir` set to `dir`.
+    pub fn with_input_dir(dir: impl Into<PathBuf>) -> Self {
+        let mut cfg = PipelineConfig::default();
+        cfg.input.dir = dir.into();
+        cfg
+    }
+}
+
+/// `[detect]`: the detection stage's own configuration.
+pub type DetectSection = bostrack_detect::DetectConfig;
+
+/// `[fit]`: the fit stage's own configuration.
+pub type FitSection = bostrack_fit::FitConfig;
+
+/// Where the reference (no-flow) image comes from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ReferenceFrom {
+    /// The file named by `input.reference`.
+    File,
+    /// The pixel-wise mean of the no-flow stack.
+    StackMean,
+}
+
+/// `[input]`: the images of one campaign. Paths are relative to `dir`, which is itself relative
+/// to the configuration file's folder.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct InputConfig {
+    /// Campaign folder.
+    pub dir: PathBuf,
+    /// Whether the reference image is a file or the mean of the no-flow stack.
+    pub reference_from: ReferenceFrom,
+    /// Reference image file (used when `reference_from = "file"`).
+    pub reference: PathBuf,
+    /// Folder of the no-flow stack; empty for none.
+    pub stack_dir: PathBuf,
+    /// File-name pattern of the stack images.
+    pub stack_glob: String,
+    /// Folder of the gradient (flow-on) images.
+    pub gradient_dir: PathBuf,
+    /// File-name pattern of the gradient images.
+    pub gradient_glob: String,
+    /// Region-of-interest mask; empty for the whole image.
+    pub mask: PathBuf,
+}
+
+impl Default for InputConfig {
+    fn default() -> Self {
+        InputConfig {
+            dir: PathBuf::from("."),
+            reference_from: ReferenceFrom::File,
+            reference: PathBuf::from("reference.tif"),
+            stack_dir: PathBuf::from("stack"),
+            stack_glob: "*.tif".into(),
+            gradient_dir: PathBuf::from("gradient"),
+            gradient_glob: "*.tif".into(),
+            mask: PathBuf::new(),
+        }
+    }
+}
+
+/// `[match]`: pairing each reference dot with its partner in a gradient image, and validating
+/// the displacements with the normalised median test (Westerweel & Scarano, Exp. Fluids 39:1096,
+/// 2005): a displacement is an outlier when `|d - median(d_nb)| / (median(|d_nb - median(d_nb)|)
+/// + epsilon) > threshold` over its 8 grid neighbours.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MatchConfig {
+    /// Largest distance to a partner, as a fraction of the dot spacing (0, 1].
+    pub search_radius: f64,
+    /// Median-test epsilon (px): the displacement noise floor.
+    pub median_epsilon: f64,
+    /// Median-test threshold (dimensionless).
+    pub median_threshold: f64,
+}
+
+impl Default for MatchConfig {
+    fn default() -> Self {
+        MatchConfig {
+            search_radius: 0.4,
+            median_epsilon: 0.1,
+            median_threshold: 2.0,
+        }
+    }
+}
+
+/// Which position of a reference dot the displacement is measured from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ReferencePosition {
+    /// The fit in the single reference image (uncertainty u_ref). The default, as in
+    /// `bostrack-displacement`.
+    Image,
+    /// The mean of the fits over the K no-flow stack images (uncertainty u_ref / sqrt(K)).
+    StackMean,
+}
+
+/// Which amplification-ratio formula to use: the model crate's own (serde names `notes`,
+/// `published`; ../shared/papers/NOTES.md §2).
+pub use bostrack_model::ArVariant;
+
+/// `[uncertainty]`: per-dot displacement uncertainty.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct UncertaintyConfig {
+    /// Remove each no-flow image's common-mode shift before the per-dot scatter is computed.
+    pub common_mode: bool,
+    /// Reference position: single image or stack mean.
+    pub reference_position: ReferencePosition,
+    /// Amplification-ratio variant.
+    pub ar_variant: ArVariant,
+}
+
+impl Default for UncertaintyConfig {
+    fn default() -> Self {
+        UncertaintyConfig {
+            common_mode: true,
+            reference_position: ReferencePosition::Image,
+            ar_variant: ArVariant::Notes,
+        }
+    }
+}
+
+/// A figure the run can draw.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Figure {
+    /// Campaign figure: the reference dots at their positions, coloured by the magnitude of
+    /// their Cramér-Rao bound; dots without a usable reference fit marked (`DIR/detections.*`).
+    Detections,
+    /// Per frame: displacement arrows over the dots coloured by |d| (`displacement.*`).
+    Displacement,
+    /// Per frame: map of the displacement uncertainty |u_d| (`uncertainty.*`).
+    Uncertainty,
+    /// Per frame: map of the amplification ratio |AR| (`amplification.*`).
+    Amplification,
+    /// Per frame: histograms of the position uncertainty magnitudes u_ref and u_grad (the
+    /// paper's Fig. 6c,f; `uncertainty-histogram.*`) and of |AR| (`ar-histogram.*`).
+    Histograms,
+    /// Campaign figure: median |d| and median |u_d| against the frame number
+    /// (`DIR/campaign.*`).
+    Campaign,
+}
+
+impl Figure {
+    /// Every figure, in the order of the documentation.
+    pub const ALL: [Figure; 6] = [
+        Figure::Detections,
+        Figure::Displacement,
+        Figure::Uncertainty,
+        Figure::Amplification,
+        Figure::Histograms,
+        Figure::Campaign,
+    ];
+
+    /// The name used in `pipeline.toml`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Figure::Detections => "detections",
+            Figure::Displacement => "displacement",
+            Figure::Uncertainty => "uncertainty",
+            Figure::Amplification => "amplification",
+            Figure::Histograms => "histograms",
+            Figure::Campaign => "campaign",
+        }
+    }
+}
+
+/// A file format of the figures.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum FigureFormat {
+    /// 8-bit RGB PNG.
+    Png,
+    /// SVG (text as `<text>` elements).
+    Svg,
+}
+
+impl FigureFormat {
+    /// The file extension (and the name used in `pipeline.toml`).
+    pub fn extension(self) -> &'static str {
+        match self {
+            FigureFormat::Png => "png",
+            FigureFormat::Svg => "svg",
+        }
+    }
+}
+
+/// `[output]`: what a run writes, and where.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct OutputConfig {
+    /// Output folder (relative to the configuration file's folder).
+    pub dir: PathBuf,
+    /// Per-dot CSV files.
+    pub csv: bool,
+    /// Summary file.
+    pub summary: bool,
+    /// Figures to draw.
+    pub figures: Vec<Figure>,
+    /// File formats of every figure.
+    pub figure_formats: Vec<FigureFormat>,
+    /// Replace the outputs of an earlier run.
+    pub overwrite: bool,
+}
+
+impl Default for OutputConfig {
+    fn default() -> Self {
+        OutputConfig {
+            dir: PathBuf::from("out"),
+            csv: true,
+            summary: true,
+            figures: vec![Figure::Displacement, Figure::Uncertainty],
+            figure_formats: vec![FigureFormat::Png],
+            overwrite: false,
+        }
+    }
+}
+
+/// `[run]`: how the work is run.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RunConfig {
+    /// Worker threads; 0 = every CPU available to the process (see [`crate::available_jobs`]).
+    pub jobs: usize,
+}

@@ -1,0 +1,44 @@
+//! How many worker threads a run gets.
+
+/// The number of CPUs this process may actually use: `SLURM_CPUS_PER_TASK` when it is set to a
+/// positive integer (a Slurm allocation), otherwise [`std::thread::available_parallelism`], which
+/// honours cgroup CPU quotas and the affinity mask; 1 if neither is known.
+pub fn available_jobs() -> usize {
+    slurm_cpus(std::env::var("SLURM_CPUS_PER_TASK").ok().as_deref())
+        .or_else(|| std::thread::available_parallelism().ok().map(|n| n.get()))
+        .unwrap_or(1)
+}
+
+/// `requested` threads, or [`available_jobs`] when `requested` is 0 ("all available").
+pub fn resolve_jobs(requested: usize) -> usize {
+    if requested == 0 {
+        available_jobs()
+    } else {
+        requested
+    }
+}
+
+fn slurm_cpus(value: Option<&str>) -> Option<usize> {
+    value?.trim().parse::<usize>().ok().filter(|&n| n > 0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn slurm_value_is_parsed_strictly() {
+        assert_eq!(slurm_cpus(Some("4")), Some(4));
+        assert_eq!(slurm_cpus(Some(" 12\n")), Some(12));
+        assert_eq!(slurm_cpus(Some("0")), None);
+        assert_eq!(slurm_cpus(Some("4(x2)")), None);
+        assert_eq!(slurm_cpus(None), None);
+    }
+
+    #[test]
+    fn zero_means_available() {
+        assert_eq!(resolve_jobs(3), 3);
+        assert!(resolve_jobs(0) >= 1);
+        assert_eq!(resolve_jobs(0), available_jobs());
+    }
+}

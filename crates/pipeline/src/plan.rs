@@ -1,0 +1,444 @@
+//! The validated plan: the second configuration level, with every path resolved and checked.
+
+use crate::config::{
+    DetectSection, Figure, FigureFormat, FitSection, MatchConfig, PipelineConfig, ReferenceFrom,
+    ReferencePosition, UncertaintyConfig,
+};
+use crate::error::ConfigError;
+use crate::files::list_matching;
+use crate::jobs::resolve_jobs;
+use crate::load::load_config;
+use std::path::{Path, PathBuf};
+
+/// Where the reference image of a run comes from.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum ReferenceImage {
+    /// This file (checked to exist).
+    File(PathBuf),
+    /// The pixel-wise mean of [`Plan::stack`] (which is then not empty).
+    StackMean,
+}
+
+/// The outputs a run writes.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct OutputPlan {
+    /// Output folder (resolved; may not exist yet).
+    pub dir: PathBuf,
+    pub csv: bool,
+    pub summary: bool,
+    /// Figures to draw, without duplicates, in the order written.
+    pub figures: Vec<Figure>,
+    /// File formats of every figure, without duplicates.
+    pub figure_formats: Vec<FigureFormat>,
+    pub overwrite: bool,
+}
+
+/// A validated campaign: resolved, existing input files in natural order, checked stage
+/// configurations, and the number of worker threads.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Plan {
+    /// The configuration file the plan was built from.
+    pub config_file: PathBuf,
+    /// The configuration as parsed (for the run record).
+    pub config: PipelineConfig,
+    pub reference: ReferenceImage,
+    /// No-flow stack images (natural order); empty when `input.stack_dir = ""`.
+    pub stack: Vec<PathBuf>,
+    /// Gradient images (natural order; at least one).
+    pub gradients: Vec<PathBuf>,
+    pub mask: Option<PathBuf>,
+    pub detect: DetectSection,
+    pub fit: FitSection,
+    pub matching: MatchConfig,
+    pub uncertainty: UncertaintyConfig,
+    pub output: OutputPlan,
+    /// Worker threads (`run.jobs`, 0 resolved to the available CPUs).
+    pub jobs: usize,
+}
+
+impl Plan {
+    /// Reads, parses and validates a configuration file.
+    pub fn load(config_file: &Path) -> Result<Plan, ConfigError> {
+        let cfg = load_config(config_file)?;
+        Plan::from_config(cfg, config_file)
+    }
+
+    /// Validates a parsed configuration; relative paths are resolved against the folder of
+    /// `config_file` (which is not read).
+    pub fn from_config(cfg: PipelineConfig, config_file: &Path) -> Result<Plan, ConfigError> {
+        let v = Validator { file: config_file };
+        v.check_values(&cfg)?;
+
+        let base = config_file.parent().unwrap_or(Path::new(""));
+        let input_dir = base.join(&cfg.input.dir);
+        v.require_dir("input.dir", &input_dir)?;
+
+        let stack = if cfg.input.stack_dir.as_os_str().is_empty() {
+            Vec::new()
+        } else {
+            v.list(
+                "input.stack_dir",
+                "input.stack_glob",
+                &input_dir.join(&cfg.input.stack_dir),
+                &cfg.input.stack_glob,
+            )?
+        };
+        let gradients = v.list(
+            "input.gradient_dir",
+            "input.gradient_glob",
+            &input_dir.join(&cfg.input.gradient_dir),
+            &cfg.input.gradient_glob,
+        )?;
+
+        let reference = match cfg.input.reference_from {
+            ReferenceFrom::File => {
+                let p = input_dir.join(&cfg.input.reference);
+                v.require_file("input.reference", &p)?;
+                ReferenceImage::File(p)
+            }
+            ReferenceFrom::StackMean => {
+                if stack.is_empty() {
+                    return Err(v.invalid(
+                        "input.reference_from",
+                        "\"stack-mean\" needs a no-flow stack (input.stack_dir is \"\")",
+                    ));
+                }
+                ReferenceImage::StackMean
+            }
+        };
+        if cfg.uncertainty.reference_position == ReferencePosition::StackMean && stack.is_empty() {
+            return Err(v.invalid(
+                "uncertainty.reference_position",
+                "\"stack-mean\" needs a no-flow stack (input.stack_dir is \"\"); use \"image\"",
+            ));
+        }
+
+        let mask = if cfg.input.mask.as_os_str().is_empty() {
+            None
+        } else {
+            let p = input_dir.join(&cfg.input.mask);
+            v.require_file("input.mask", &p)?;
+            Some(p)
+        };
+
+        let output = OutputPlan {
+            dir: base.join(&cfg.output.dir),
+            csv: cfg.output.csv,
+            summary: cfg.output.summary,
+            figures: cfg.output.figures.clone(),
+            figure_formats: cfg.output.figure_formats.clone(),
+            overwrite: cfg.output.overwrite,
+        };
+
+        Ok(Plan {
+            config_file: config_file.to_path_buf(),
+            reference,
+            stack,
+            gradients,
+            mask,
+            detect: cfg.detect.clone(),
+            fit: cfg.fit.clone(),
+            matching: cfg.matching.clone(),
+            uncertainty: cfg.uncertainty.clone(),
+            output,
+            jobs: resolve_jobs(cfg.run.jobs),
+            config: cfg,
+        })
+    }
+}
+
+struct Validator<'a> {
+    file: &'a Path,
+}
+
+impl Validator<'_> {
+    fn invalid(&self, key: &str, message: impl Into<String>) -> ConfigError {
+        ConfigError::Invalid {
+            path: self.file.to_path_buf(),
+            key: key.into(),
+            message: message.into(),
+        }
+    }
+
+    fn not_found(&self, key: &str, file: &Path) -> ConfigError {
+        ConfigError::NotFound {
+            path: self.file.to_path_buf(),
+            key: key.into(),
+            file: file.to_path_buf(),
+        }
+    }
+
+    fn check_values(&self, cfg: &PipelineConfig) -> Result<(), ConfigError> {
+        if let Err(e) = cfg.detect.validate() {
+            let key = match &e {
+                bostrack_detect::DetectError::InvalidConfig { field, .. } => {
+                    format!("detect.{field}")
+                }
+                _ => "detect".into(),
+            };
+            return Err(self.invalid(&key, e.to_string()));
+        }
+        cfg.fit
+            .validate()
+            .map_err(|e| self.invalid("fit", e.to_string()))?;
+        let m = &cfg.matching;
+        if !(m.search_radius > 0.0 && m.search_radius <= 1.0) {
+            return Err(self.invalid(
+                "match.search_radius",
+                format!("{} is not in (0, 1]", m.search_radius),
+            ));
+        }
+        if !(m.median_epsilon.is_finite() && m.median_epsilon >= 0.0) {
+            return Err(self.invalid(
+                "match.median_epsilon",
+                format!("{} is not a finite value >= 0", m.median_epsilon),
+            ));
+        }
+        if !(m.median_threshold.is_finite() && m.median_threshold > 0.0) {
+            return Err(self.invalid(
+                "match.median_threshold",
+                format!("{} is not a finite value > 0", m.median_threshold),
+            ));
+        }
+        for (key, glob) in [
+            ("input.stack_glob", &cfg.input.stack_glob),
+            ("input.gradient_glob", &cfg.input.gradient_glob),
+        ] {
+            if glob.is_empty() || glob.contains(['/', '\\']) {
+                return Err(self.invalid(key, format!("`{glob}` is not a file-name pattern (no folders; put those in the _dir key)")));
+            }
+        }
+        let figs = &cfg.output.figures;
+        for (k, f) in figs.iter().enumerate() {
+            if figs[..k].contains(f) {
+                return Err(self.invalid(
+                    "output.figures",
+                    format!("\"{}\" is listed twice", f.name()),
+                ));
+            }
+        }
+        let formats = &cfg.output.figure_formats;
+        for (k, f) in formats.iter().enumerate() {
+            if formats[..k].contains(f) {
+                return Err(self.invalid(
+                    "output.figure_formats",
+                    format!("\"{}\" is listed twice", f.extension()),
+                ));
+            }
+        }
+        if formats.is_empty() && !figs.is_empty() {
+            return Err(self.invalid(
+                "output.figure_formats",
+                "is empty but figures are requested (use [\"png\"], or figures = [])",
+            ));
+        }
+        Ok(())
+    }
+
+    fn require_file(&self, key: &str, p: &Path) -> Result<(), ConfigError> {
+        if p.is_file() {
+            Ok(())
+        } else {
+            Err(self.not_found(key, p))
+        }
+    }
+
+    fn require_dir(&self, key: &str, p: &Path) -> Result<(), ConfigError> {
+        if p.is_dir() {
+            Ok(())
+        } else {
+            Err(self.not_found(key, p))
+        }
+    }
+
+    fn list(
+        &self,
+        dir_key: &str,
+        glob_key: &str,
+        dir: &Path,
+        glob: &str,
+    ) -> Result<Vec<PathBuf>, ConfigError> {
+        self.require_dir(dir_key, dir)?;
+        let files = list_matching(dir, glob).map_err(|source| ConfigError::ListDir {
+            path: self.file.to_path_buf(),
+            key: dir_key.into(),
+            dir: dir.to_path_buf(),
+            source,
+        })?;
+        if files.is_empty() {
+            return Err(ConfigError::NoMatch {
+                path: self.file.to_path_buf(),
+                key: glob_key.into(),
+                dir: dir.to_path_buf(),
+                pattern: glob.into(),
+            });
+        }
+        Ok(files)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::load::parse_config;
+    use std::fs;
+
+    /// A campaign folder `camp/` beside `cfg/pipeline.toml`, with frames named to need natural order.
+    fn campaign() -> tempfile::TempDir {
+        let root = tempfile::tempdir().unwrap();
+        let camp = root.path().join("camp");
+        fs::create_dir_all(camp.join("stack")).unwrap();
+        fs::create_dir_all(camp.join("grad")).unwrap();
+        fs::create_dir_all(root.path().join("cfg")).unwrap();
+        fs::write(camp.join("reference.tif"), b"x").unwrap();
+        fs::write(camp.join("mask.png"), b"x").unwrap();
+        for k in [1, 2, 3] {
+            fs::write(camp.join(format!("stack/s{k}.tif")), b"x").unwrap();
+        }
+        for k in [10, 9, 1, 2] {
+            fs::write(camp.join(format!("grad/frame{k}.tif")), b"x").unwrap();
+        }
+        fs::write(camp.join("grad/readme.txt"), b"x").unwrap();
+        root
+    }
+
+    fn plan(root: &Path, text: &str) -> Result<Plan, ConfigError> {
+        let file = root.join("cfg/pipeline.toml");
+        fs::write(&file, text).unwrap();
+        Plan::load(&file)
+    }
+
+    const BASE: &str = "[input]\ndir = \"../camp\"\ngradient_dir = \"grad\"\n";
+
+    #[test]
+    fn resolves_relative_to_the_config_file_and_sorts_naturally() {
+        let root = campaign();
+        let p = plan(
+            root.path(),
+            &format!("{BASE}mask = \"mask.png\"\n[run]\njobs = 3\n"),
+        )
+        .unwrap();
+        let camp = root.path().join("cfg/../camp");
+        assert_eq!(
+            p.reference,
+            ReferenceImage::File(camp.join("reference.tif"))
+        );
+        let names: Vec<_> = p
+            .gradients
+            .iter()
+            .map(|g| g.file_name().unwrap().to_str().unwrap())
+            .collect();
+        assert_eq!(
+            names,
+            ["frame1.tif", "frame2.tif", "frame9.tif", "frame10.tif"]
+        );
+        assert_eq!(p.stack.len(), 3);
+        assert_eq!(p.mask, Some(camp.join("mask.png")));
+        assert_eq!(p.output.dir, root.path().join("cfg/out"));
+        assert_eq!(p.jobs, 3);
+        assert_eq!(p.matching, MatchConfig::default());
+    }
+
+    #[test]
+    fn missing_files_are_named() {
+        let root = campaign();
+        let e = plan(root.path(), &format!("{BASE}reference = \"nope.tif\"\n")).unwrap_err();
+        let msg = e.to_string();
+        assert!(
+            msg.contains("pipeline.toml: input.reference:") && msg.contains("nope.tif not found"),
+            "{msg}"
+        );
+
+        let e = plan(root.path(), &format!("{BASE}gradient_glob = \"*.png\"\n")).unwrap_err();
+        assert!(
+            matches!(&e, ConfigError::NoMatch { key, .. } if key == "input.gradient_glob"),
+            "{e}"
+        );
+
+        let e = plan(root.path(), "[input]\ndir = \"../elsewhere\"\n").unwrap_err();
+        assert!(
+            matches!(&e, ConfigError::NotFound { key, .. } if key == "input.dir"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn stack_mean_needs_a_stack() {
+        let root = campaign();
+        let text = format!("{BASE}stack_dir = \"\"\nreference_from = \"stack-mean\"\n");
+        let e = plan(root.path(), &text).unwrap_err();
+        assert!(
+            matches!(&e, ConfigError::Invalid { key, .. } if key == "input.reference_from"),
+            "{e}"
+        );
+
+        let text =
+            format!("{BASE}stack_dir = \"\"\n[uncertainty]\nreference_position = \"stack-mean\"\n");
+        let e = plan(root.path(), &text).unwrap_err();
+        assert!(
+            matches!(&e, ConfigError::Invalid { key, .. } if key == "uncertainty.reference_position"),
+            "{e}"
+        );
+
+        let text = format!("{BASE}stack_dir = \"\"\n");
+        let p = plan(root.path(), &text).unwrap();
+        assert!(p.stack.is_empty());
+
+        let text = format!("{BASE}reference_from = \"stack-mean\"\nreference = \"absent.tif\"\n");
+        assert_eq!(
+            plan(root.path(), &text).unwrap().reference,
+            ReferenceImage::StackMean
+        );
+    }
+
+    #[test]
+    fn values_out_of_range_are_rejected() {
+        let root = campaign();
+        for (extra, key) in [
+            ("[match]\nsearch_radius = 0.0\n", "match.search_radius"),
+            ("[match]\nsearch_radius = 1.5\n", "match.search_radius"),
+            ("[match]\nmedian_epsilon = -0.1\n", "match.median_epsilon"),
+            (
+                "[match]\nmedian_threshold = nan\n",
+                "match.median_threshold",
+            ),
+            (
+                "[output]\nfigures = [\"uncertainty\", \"uncertainty\"]\n",
+                "output.figures",
+            ),
+            ("[detect]\nmin_snr = -1.0\n", "detect.min_snr"),
+            ("[fit]\nmax_iterations = 0\n", "fit"),
+        ] {
+            let e = plan(root.path(), &format!("{BASE}{extra}")).unwrap_err();
+            assert!(
+                matches!(&e, ConfigError::Invalid { key: k, .. } if k == key),
+                "{extra}: {e}"
+            );
+        }
+        let e = plan(
+            root.path(),
+            "[input]\ndir = \"../camp\"\ngradient_glob = \"grad/*.tif\"\n",
+        )
+        .unwrap_err();
+        assert!(
+            matches!(&e, ConfigError::Invalid { key, .. } if key == "input.gradient_glob"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn absolute_paths_stay_absolute() {
+        let root = campaign();
+        let camp = root.path().join("camp");
+        let text = format!(
+            "[input]\ndir = {:?}\ngradient_dir = \"grad\"\n",
+            camp.to_str().unwrap()
+        );
+        let cfg = parse_config(&text, Path::new("x.toml")).unwrap();
+        let p = Plan::from_config(cfg, Path::new("/nonexistent/x.toml")).unwrap();
+        assert_eq!(
+            p.reference,
+            ReferenceImage::File(camp.join("reference.tif"))
+        );
+    }
+}

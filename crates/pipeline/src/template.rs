@@ -1,0 +1,405 @@
+//! The annotated `pipeline.toml` that `bostrack init` writes, generated from the defaults in code.
+//!
+//! The values come from serialising a [`PipelineConfig`] (so the defaults are written once, in the
+//! `Default` impls); the comments come from [`SECTIONS`]. A key that has a value but no entry here
+//! is still written (with a "no description" comment) and a test fails until it is described.
+
+use crate::config::PipelineConfig;
+use crate::error::ConfigError;
+use std::fmt::Write as _;
+use std::path::PathBuf;
+
+/// Documentation of one key of a section.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct KeyDoc {
+    pub key: &'static str,
+    /// Comment lines (without `# `), separated by `\n`.
+    pub doc: &'static str,
+    /// For keys that are absent by default (optional values): a value to show commented out.
+    pub example: Option<&'static str>,
+}
+
+/// Documentation of one section.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct SectionDoc {
+    pub name: &'static str,
+    pub doc: &'static str,
+    pub keys: &'static [KeyDoc],
+}
+
+const fn key(key: &'static str, doc: &'static str) -> KeyDoc {
+    KeyDoc {
+        key,
+        doc,
+        example: None,
+    }
+}
+
+const HEADER: &str = "\
+bostrack campaign configuration (pipeline.toml).
+
+Written by `bostrack init`: every key is shown with its default value, so a key left out means
+exactly what is written here. Unknown keys are errors. Relative paths are resolved against the
+folder of this file. Conventions (pixel centres at integer coordinates, x right, y down, lengths
+in px, displacement = gradient - reference): docs/CONVENTIONS.md.";
+
+pub(crate) const SECTIONS: &[SectionDoc] = &[
+    SectionDoc {
+        name: "input",
+        doc: "The images of the campaign. Every path in this section is relative to `dir`.",
+        keys: &[
+            key(
+                "dir",
+                "Campaign folder, relative to the folder of this file.",
+            ),
+            key(
+                "reference_from",
+                "Reference (no-flow) image: \"file\" reads `reference`; \"stack-mean\" uses the\n\
+                 pixel-wise mean of the no-flow stack.",
+            ),
+            key(
+                "reference",
+                "Reference image file (read when reference_from = \"file\").",
+            ),
+            key(
+                "stack_dir",
+                "Folder of the no-flow stack: further images without flow, for the per-dot\n\
+                 position noise. \"\" for none.",
+            ),
+            key(
+                "stack_glob",
+                "File-name pattern of the stack images (* any characters, ? one character,\n\
+                 [a-z] one of a set); files are sorted naturally (im2 before im10).",
+            ),
+            key(
+                "gradient_dir",
+                "Folder of the gradient images (the target seen through the flow).",
+            ),
+            key(
+                "gradient_glob",
+                "File-name pattern of the gradient images, sorted naturally.",
+            ),
+            key(
+                "mask",
+                "Region-of-interest mask image (white = keep, whatever its photometric tag);\n\
+                 \"\" for the whole image.",
+            ),
+        ],
+    },
+    SectionDoc {
+        name: "detect",
+        doc: "Dot detection on the lattice of the target (bostrack-detect). The lattice is always\n\
+              measured from the image; spacing and diameter are only priors.",
+        keys: &[
+            KeyDoc {
+                key: "spacing",
+                doc: "Approximate dot spacing (nearest-neighbour distance), px. Left out: estimated.",
+                example: Some("8.0"),
+            },
+            KeyDoc {
+                key: "diameter",
+                doc: "Approximate dot diameter d = 4 sigma, px; sizes the matched filter. Left out:\n\
+                      estimated.",
+                example: Some("6.5"),
+            },
+            key(
+                "lattice",
+                "\"square\" or \"hexagonal\" (the measured basis angle must agree within 15 degrees).",
+            ),
+            key(
+                "polarity",
+                "\"bright\" dots on a dark background, or \"dark\" dots on a bright one.",
+            ),
+            key(
+                "min_snr",
+                "A site holds a dot only if its filtered peak exceeds min_snr times the robust noise\n\
+                 of the filtered image ...",
+            ),
+            key(
+                "missing_ratio",
+                "... and missing_ratio times its neighbours' median peak; otherwise it is \"missing\".",
+            ),
+            key(
+                "faint_ratio",
+                "A dot below faint_ratio times its neighbours' median peak is flagged \"faint\".",
+            ),
+            key(
+                "map_degree",
+                "Total degree of the polynomial grid-to-image map, 1 (affine) to 4; lowered\n\
+                 automatically when too few dots support it.",
+            ),
+            KeyDoc {
+                key: "window_half_width",
+                doc: "Half-width of the square fit window, px. Left out:\n\
+                      max(2, min(round(spacing / 2), ceil(1.5 d))).",
+                example: Some("4"),
+            },
+            key(
+                "search_radius",
+                "Tracking into the other images: search radius around a dot's reference position,\n\
+                 as a fraction of the spacing, (0, 0.5].",
+            ),
+        ],
+    },
+    SectionDoc {
+        name: "fit",
+        doc: "Per-dot fit of the elliptical Gaussian model (bostrack-fit).",
+        keys: &[
+            key(
+                "model",
+                "Free parameters: \"elliptical\" (7), \"axis_aligned\" (rho = 0) or \"circular\"\n\
+                 (sigma_x = sigma_y, rho = 0).",
+            ),
+            key(
+                "sampling",
+                "\"integrated\" (the model's mean over each pixel, what a camera records) or \"point\"\n\
+                 (its value at the pixel centre).",
+            ),
+            key(
+                "estimator",
+                "\"lsg\" (least-squares Gaussian, all parameters), \"iwc\" (intensity-weighted\n\
+                 centroid) or \"tpg\" (three-point Gaussian; rho not estimated).",
+            ),
+            key(
+                "solver",
+                "Least-squares solver: \"fast\" (specialised Levenberg-Marquardt) or \"lm_crate\"\n\
+                 (the levenberg-marquardt crate).",
+            ),
+            key(
+                "max_iterations",
+                "Levenberg-Marquardt iterations, rejected steps included.",
+            ),
+            key(
+                "tolerance",
+                "Converged when the last step is below this many standard deviations of the\n\
+                 parameters.",
+            ),
+            key(
+                "neighbours",
+                "\"subtract\": fit, subtract the fitted neighbours' tails from each window, fit again;\n\
+                 \"none\": fit each window as it is.",
+            ),
+            key(
+                "neighbour_passes",
+                "With neighbours = \"subtract\": how many times every dot is refitted after its\n\
+                 neighbours' latest fits were subtracted.",
+            ),
+            key(
+                "bound",
+                "Compute the per-dot Cramer-Rao bound (crlb_x, crlb_y) from the fitted parameters.",
+            ),
+        ],
+    },
+    SectionDoc {
+        name: "match",
+        doc: "Pairing every reference dot with its partner in each gradient image, and validation\n\
+              with the normalised median test (Westerweel & Scarano 2005) over the 8 grid\n\
+              neighbours: |d - median| / (median residual + epsilon) > threshold flags an outlier.",
+        keys: &[
+            key(
+                "search_radius",
+                "Largest distance to the partner, as a fraction of the dot spacing (0, 1].",
+            ),
+            key(
+                "median_epsilon",
+                "Median-test epsilon (px): the displacement noise floor.",
+            ),
+            key("median_threshold", "Median-test threshold (dimensionless)."),
+        ],
+    },
+    SectionDoc {
+        name: "uncertainty",
+        doc: "Per-dot displacement uncertainty: u_d = sqrt(u_refpos^2 + u_grad^2), u_grad = AR * u_ref\n\
+              (docs/CONVENTIONS.md, ../shared/papers/NOTES.md section 2).",
+        keys: &[
+            key(
+                "common_mode",
+                "Remove the common-mode shift of each no-flow stack image (the mean displacement of\n\
+                 all its dots: camera or target vibration) before the per-dot scatter is computed.",
+            ),
+            key(
+                "reference_position",
+                "Reference dot position: \"image\" (the fit in the reference image) or \"stack-mean\"\n\
+                 (the mean over the K stack images; its uncertainty is u_ref / sqrt(K)).",
+            ),
+            key(
+                "ar_variant",
+                "Amplification ratio: \"notes\" (NOTES.md section 2) or \"published\" (the published\n\
+                 reference code, only to reproduce published numbers).",
+            ),
+        ],
+    },
+    SectionDoc {
+        name: "output",
+        doc: "What a run writes.",
+        keys: &[
+            key("dir", "Output folder, relative to the folder of this file."),
+            key("csv", "Write one per-dot CSV file per gradient image."),
+            key(
+                "summary",
+                "Write a summary (counts, medians, flags) of the run.",
+            ),
+            key(
+                "figures",
+                "Figures to draw. Per frame, into DIR/<frame>/: \"displacement\" (arrows over |d|),\n\
+                 \"uncertainty\" (map of |u_d|), \"amplification\" (map of |AR|), \"histograms\"\n\
+                 (u_ref and u_grad, |AR|). Per campaign, into DIR/: \"campaign\" (median |d| and\n\
+                 median |u_d| against the frame number), \"detections\" (the reference dots).",
+            ),
+            key(
+                "figure_formats",
+                "File formats of the figures: \"png\" and/or \"svg\".",
+            ),
+            key(
+                "overwrite",
+                "Replace the outputs of an earlier run in `dir` (otherwise the run refuses).",
+            ),
+        ],
+    },
+    SectionDoc {
+        name: "run",
+        doc: "How the work is run.",
+        keys: &[key(
+            "jobs",
+            "Worker threads; 0 = every CPU available to the process (cgroup quota,\n\
+             SLURM_CPUS_PER_TASK). The command-line option --jobs overrides it.",
+        )],
+    },
+];
+
+/// The annotated configuration file for `cfg`: every key with its value and a comment.
+///
+/// `template(&PipelineConfig::default())` is the file `bostrack init` writes; parsing the result
+/// gives `cfg` back.
+pub fn template(cfg: &PipelineConfig) -> Result<String, ConfigError> {
+    let value = toml::Table::try_from(cfg).map_err(|e| ConfigError::Invalid {
+        path: PathBuf::from("<template>"),
+        key: "(configuration)".into(),
+        message: e.to_string(),
+    })?;
+    let mut out = String::new();
+    comment(&mut out, HEADER);
+    let mut seen_sections = Vec::new();
+    for section in SECTIONS {
+        seen_sections.push(section.name);
+        let table = value.get(section.name).and_then(toml::Value::as_table);
+        write_section(&mut out, section.name, section.doc, section.keys, table);
+    }
+    for (name, v) in &value {
+        if !seen_sections.contains(&name.as_str()) {
+            write_section(&mut out, name, "(no description)", &[], v.as_table());
+        }
+    }
+    Ok(out)
+}
+
+fn write_section(
+    out: &mut String,
+    name: &str,
+    doc: &str,
+    keys: &[KeyDoc],
+    table: Option<&toml::Table>,
+) {
+    out.push('\n');
+    comment(out, doc);
+    let _ = writeln!(out, "[{name}]");
+    let empty = toml::Table::new();
+    let table = table.unwrap_or(&empty);
+    let mut written = 0;
+    for k in keys {
+        match (table.get(k.key), k.example) {
+            (Some(v), _) => {
+                comment(out, k.doc);
+                let _ = writeln!(out, "{} = {}", k.key, v);
+            }
+            (None, Some(example)) => {
+                comment(out, k.doc);
+                let _ = writeln!(out, "# {} = {}", k.key, example);
+            }
+            (None, None) => continue,
+        }
+        written += 1;
+    }
+    for (k, v) in table {
+        if !keys.iter().any(|d| d.key == k) {
+            comment(out, "(no description)");
+            let _ = writeln!(out, "{k} = {v}");
+            written += 1;
+        }
+    }
+    if written == 0 {
+        comment(out, "(no keys yet)");
+    }
+}
+
+fn comment(out: &mut String, text: &str) {
+    for line in text.lines() {
+        let line = line.trim();
+        if line.is_empty() {
+            out.push_str("#\n");
+        } else {
+            let _ = writeln!(out, "# {line}");
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::load::parse_config;
+    use std::path::Path;
+
+    #[test]
+    fn template_parses_back_to_the_defaults() {
+        let text = template(&PipelineConfig::default()).unwrap();
+        assert_eq!(
+            parse_config(&text, Path::new("t.toml")).unwrap(),
+            PipelineConfig::default()
+        );
+    }
+
+    #[test]
+    fn template_round_trips_a_changed_config() {
+        let mut cfg = PipelineConfig::with_input_dir("some/where");
+        cfg.matching.median_threshold = 3.5;
+        cfg.output.figures.clear();
+        let text = template(&cfg).unwrap();
+        assert!(text.contains("dir = \"some/where\""));
+        assert_eq!(parse_config(&text, Path::new("t.toml")).unwrap(), cfg);
+    }
+
+    #[test]
+    fn every_key_and_section_is_documented() {
+        let text = template(&PipelineConfig::default()).unwrap();
+        assert!(
+            !text.contains("(no description)"),
+            "a key lacks a description in SECTIONS:\n{text}"
+        );
+        let value = toml::Table::try_from(PipelineConfig::default()).unwrap();
+        for s in SECTIONS {
+            let table = value[s.name].as_table().unwrap();
+            for k in s.keys {
+                assert!(
+                    table.contains_key(k.key) || k.example.is_some(),
+                    "[{}] {} is documented but is not a key",
+                    s.name,
+                    k.key
+                );
+            }
+        }
+        assert_eq!(value.len(), SECTIONS.len());
+    }
+
+    #[test]
+    fn every_line_is_a_comment_a_header_a_key_or_blank() {
+        let text = template(&PipelineConfig::default()).unwrap();
+        for line in text.lines() {
+            let ok = line.is_empty()
+                || line.starts_with('#')
+                || (line.starts_with('[') && line.ends_with(']'))
+                || line.contains(" = ");
+            assert!(ok, "odd line: {line:?}");
+            assert!(line.len() <= 100, "line too long: {line:?}");
+        }
+    }
+}

@@ -1,0 +1,75 @@
+//! The configuration files committed at the top of the repository agree with the code: the
+//! main `pipeline.toml` is exactly the generated template (so its defaults are the code's), and
+//! both campaigns resolve to the files they describe.
+
+use bostrack_pipeline::{PipelineConfig, Plan, ReferenceImage, load_config, template};
+use std::path::{Path, PathBuf};
+
+fn repo_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+/// `pipeline.toml` = `bostrack init pipeline.toml --data testdata/demo`. With BOSTRACK_BLESS=1
+/// the file is rewritten instead of compared.
+#[test]
+fn pipeline_toml_is_the_generated_template() {
+    let path = repo_root().join("pipeline.toml");
+    let expected_cfg = PipelineConfig::with_input_dir("testdata/demo");
+    let expected = template(&expected_cfg).unwrap();
+    if std::env::var("BOSTRACK_BLESS").is_ok_and(|v| v == "1") {
+        std::fs::write(&path, &expected).unwrap();
+    }
+    let committed = std::fs::read_to_string(&path).unwrap();
+    assert!(
+        committed == expected,
+        "pipeline.toml is not the generated template: regenerate it with \
+         `BOSTRACK_BLESS=1 cargo test -p bostrack-pipeline --test committed` \
+         (or `bostrack init pipeline.toml --data testdata/demo --force`)"
+    );
+    // Every value in it is the code's default, except the campaign folder.
+    assert_eq!(load_config(&path).unwrap(), expected_cfg);
+}
+
+#[test]
+fn the_demo_campaign_resolves() {
+    let plan = Plan::load(&repo_root().join("pipeline.toml")).unwrap();
+    let name = |p: &Path| p.file_name().unwrap().to_string_lossy().into_owned();
+    match &plan.reference {
+        ReferenceImage::File(p) => assert_eq!(name(p), "reference.tif"),
+        other => panic!("reference: {other:?}"),
+    }
+    let stack: Vec<String> = plan.stack.iter().map(|p| name(p)).collect();
+    assert_eq!(
+        stack,
+        [
+            "noflow_01.tif",
+            "noflow_02.tif",
+            "noflow_03.tif",
+            "noflow_04.tif",
+            "noflow_05.tif"
+        ]
+    );
+    let grads: Vec<String> = plan.gradients.iter().map(|p| name(p)).collect();
+    assert_eq!(grads, ["frame_01.tif", "frame_02.tif", "frame_03.tif"]);
+    assert_eq!(plan.mask, None);
+    assert!(plan.output.dir.ends_with("out"));
+}
+
+#[test]
+fn the_sample_campaign_resolves() {
+    let cfg_path = repo_root().join("testdata/bos-sample.toml");
+    let cfg = load_config(&cfg_path).unwrap();
+    assert_eq!(cfg.detect.spacing, Some(8.0));
+    let Some(_) = bostrack_io::bos_sample_dir() else {
+        return;
+    };
+    let plan = Plan::load(&cfg_path).unwrap();
+    let name = |p: &Path| p.file_name().unwrap().to_string_lossy().into_owned();
+    let stack: Vec<String> = plan.stack.iter().map(|p| name(p)).collect();
+    let expected: Vec<String> = (1..=10).map(|k| format!("im_{k:04}.tif")).collect();
+    assert_eq!(stack, expected);
+    assert_eq!(plan.gradients.len(), 1);
+    assert_eq!(name(&plan.gradients[0]), "gradient.tif");
+    assert!(plan.mask.as_ref().is_some_and(|m| m.is_file()));
+    assert!(matches!(&plan.reference, ReferenceImage::File(p) if p.is_file()));
+}
