@@ -127,7 +127,11 @@ pub(crate) fn moments(ws: &mut Workspace, start: [f64; 2], sampling: Sampling) -
             || (i + 1 < w && ws.keep[k + 1] == 0.0)
             || (j > 0 && ws.keep[k - w] == 0.0)
             || (j + 1 < h && ws.keep[k + w] == 0.0);
-        let ceiling = if near_hole { f64::INFINITY } else { ws.data[k] + RISE * peak };
+        let ceiling = if near_hole {
+            f64::INFINITY
+        } else {
+            ws.data[k] + RISE * peak
+        };
         // 8-connected, so that a diagonal ridge (strong rho) is followed
         for dj in -1i64..=1 {
             for di in -1i64..=1 {
@@ -136,7 +140,11 @@ pub(crate) fn moments(ws: &mut Workspace, start: [f64; 2], sampling: Sampling) -
                     continue;
                 }
                 let kk = jj as usize * w + ii as usize;
-                if !ws.mark[kk] && ws.keep[kk] > 0.0 && ws.data[kk] - bg > thr && ws.data[kk] <= ceiling {
+                if !ws.mark[kk]
+                    && ws.keep[kk] > 0.0
+                    && ws.data[kk] - bg > thr
+                    && ws.data[kk] <= ceiling
+                {
                     ws.mark[kk] = true;
                     ws.stack.push(kk as u32);
                 }
