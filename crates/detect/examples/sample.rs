@@ -2,6 +2,10 @@
 //! no-flow stack, and the cross-check against the published package's dot list.
 //!
 //! `cargo run --release -p bostrack-detect --example sample [detect-only [REPEATS]]`
+//!
+//! `detect-only` times the detection alone (best of REPEATS, default 20). With
+//! `DUMP_PNG=out.png` a magnified crop (the dark band, or the 64x64 pixels from `DUMP_AT=x,y`)
+//! is written with the seeds found without the mask marked (grey: FAINT).
 
 use bostrack_core::DotFlags;
 use bostrack_detect::{DetectConfig, Detection, detect, track};
@@ -267,12 +271,6 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 let dm = [a.centre[0] - b.centre[0], a.centre[1] - b.centre[1]];
                 let dp = [g[0] - r[0], g[1] - r[1]];
                 diff.push((dm[0] - dp[0]).hypot(dm[1] - dp[1]));
-                if diff.last().copied().unwrap_or(0.0) > 0.8 {
-                    println!(
-                        "  big: ref {:?} grad centre {:?} pred {:?} pkg grad {:?} flags {}",
-                        b.centre, a.centre, a.predicted, g, a.flags
-                    );
-                }
             }
             diff.sort_by(f64::total_cmp);
             println!(

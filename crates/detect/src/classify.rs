@@ -3,7 +3,7 @@
 
 use crate::filter::{Peak, dist2};
 use crate::grow::IndexGrid;
-use crate::linalg::{gauss_samples, median, window_centred};
+use crate::linalg::{gauss_samples, median, round_i64, window_centred};
 use crate::{DetectConfig, LatticeKind};
 use bostrack_core::{DotFlags, GridIndex, Image, Mask, Seed, Window};
 
@@ -70,15 +70,19 @@ fn ring_mean(img: &Image, sign: f64, x0: usize, x1: usize, y0: usize, y1: usize)
             n += 1;
         }
     };
-    for y in y0..=y1 {
+    for &v in &img.row(y0)[x0..=x1] {
+        add(v);
+    }
+    if y1 > y0 {
+        for &v in &img.row(y1)[x0..=x1] {
+            add(v);
+        }
+    }
+    for y in y0 + 1..y1 {
         let row = img.row(y);
-        if y == y0 || y == y1 {
-            row[x0..=x1].iter().for_each(|&v| add(v));
-        } else {
-            add(row[x0]);
-            if x1 > x0 {
-                add(row[x1]);
-            }
+        add(row[x0]);
+        if x1 > x0 {
+            add(row[x1]);
         }
     }
     if n == 0 {
@@ -88,101 +92,25 @@ fn ring_mean(img: &Image, sign: f64, x0: usize, x1: usize, y0: usize, y1: usize)
     }
 }
 
-/// What [`centroid`] measures of a dot.
+/// The centroid of a dot (see [`Template::measure`]).
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Blob {
     pub centre: [f64; 2],
     /// Weighted second central moments `[xx, yy, xy]` (px², with the Gaussian weight).
     pub mom: [f64; 3],
-    /// Highest sample above the level (counts).
+    /// Highest sample above the window-border level (counts).
     pub peak: f64,
     /// Sum of the weights (counts · px²).
     pub mass: f64,
 }
 
-/// Gaussian-weighted, background-subtracted centroid.
-///
-/// Weights `max(v - t, 0) · exp(-|x - c|² / (2 σw²))` over the `(2·half+1)²` window around the
-/// current centre `c`, with `t` the mean of the first window's border pixels (the local level
-/// between dots) and `σw = max(σ, 0.8)`. For a Gaussian dot of sigma σ the weighted mean moves
-/// only the fraction `σw² / (σ² + σw²)` of the way to the dot centre, so the step is scaled by
-/// `k = 1 + σ²/σw²` (at most 1.6, which keeps the iteration contracting whatever the true
-/// size); two iterations from the dot-map peak. The Gaussian weight keeps the neighbours' light and far noise out,
-/// which the plain thresholded centroid does not at close spacing. Unbiased for a symmetric dot.
-pub(crate) fn centroid(
-    img: &Image,
-    sign: f64,
-    start: [f64; 2],
-    sigma: f64,
-    half: usize,
-) -> Option<Blob> {
-    let (w, h) = (img.width(), img.height());
-    let sw = sigma.max(0.8);
-    let gain = (1.0 + sigma * sigma / (sw * sw)).min(1.6);
-    let inv2 = -0.5 / (sw * sw);
-    let q = (2.0 * inv2).exp();
-    let mut c = start;
-    let mut out = None;
-    let mut t = f64::NAN;
-    let mut gx = vec![0.0; 2 * half + 1];
-    let mut gy = vec![0.0; 2 * half + 1];
-    let mut gxd = vec![0.0; 2 * half + 1];
-    let mut gxdd = vec![0.0; 2 * half + 1];
-    for _ in 0..2 {
-        let win = window_centred(c[0], c[1], half).clip(w, h)?;
-        let (x0, y0) = (win.x as usize, win.y as usize);
-        let (x1, y1) = (x0 + win.width - 1, y0 + win.height - 1);
-        if t.is_nan() {
-            t = ring_mean(img, sign, x0, x1, y0, y1);
-            if !t.is_finite() {
-                return out;
-            }
-        }
-        let nx = win.width;
-        gauss_samples(&mut gx[..nx], x0 as f64 - c[0], inv2, q);
-        gauss_samples(&mut gy[..win.height], y0 as f64 - c[1], inv2, q);
-        for k in 0..nx {
-            let dx = (x0 + k) as f64 - c[0];
-            gxd[k] = gx[k] * dx;
-            gxdd[k] = gx[k] * dx * dx;
-        }
-        // Non-finite samples weigh 0 (NaN.max(0) is 0); row sums give the y moments.
-        let (mut s0, mut sx, mut sy, mut sxx, mut syy, mut sxy) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
-        let mut peak: f64 = 0.0;
-        for (ky, y) in (y0..=y1).enumerate() {
-            let row = &img.row(y)[x0..=x1];
-            let dy = y as f64 - c[1];
-            let (mut r0, mut rx, mut rxx) = (0.0, 0.0, 0.0);
-            for k in 0..nx {
-                let v = (sign * row[k] - t).max(0.0);
-                peak = peak.max(v);
-                r0 += v * gx[k];
-                rx += v * gxd[k];
-                rxx += v * gxdd[k];
-            }
-            let g = gy[ky];
-            s0 += g * r0;
-            sx += g * rx;
-            sxx += g * rxx;
-            sy += g * r0 * dy;
-            syy += g * r0 * dy * dy;
-            sxy += g * rx * dy;
-        }
-        if s0.is_nan() || s0 <= 0.0 {
-            return out;
-        }
-        let (mx, my) = (sx / s0, sy / s0);
-        let mom = [sxx / s0 - mx * mx, syy / s0 - my * my, sxy / s0 - mx * my];
-        let nc = [c[0] + gain * mx, c[1] + gain * my];
-        out = Some(Blob {
-            centre: nc,
-            mom,
-            peak,
-            mass: s0,
-        });
-        c = nc;
-    }
-    out
+/// What [`Template::measure`] returns: the template test at the start point and the centroid.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Measure {
+    /// Template statistic `T` and amplitude `A` at the start point (see [`Template::eval`]).
+    pub t: f64,
+    pub a: f64,
+    pub blob: Option<Blob>,
 }
 
 /// The matched-filter test of a dot at a sub-pixel point (see [`Template::eval`]).
@@ -240,6 +168,174 @@ impl Template {
         }
     }
 
+    /// The local level for the test at `p`: the window border's mean `ring`, or for overlapping
+    /// dots the mean of 3x3 pixel blocks at the surrounding cell centres.
+    fn level(&self, img: &Image, sign: f64, p: [f64; 2], ring: f64) -> f64 {
+        let Some(offsets) = &self.cells else {
+            return ring;
+        };
+        let (w, h) = (img.width() as i64, img.height() as i64);
+        let (mut s, mut n) = (0.0, 0usize);
+        for o in offsets {
+            let (cx, cy) = (round_i64(p[0] + o[0]), round_i64(p[1] + o[1]));
+            let (x0, x1) = ((cx - 1).max(0), (cx + 1).min(w - 1));
+            let (y0, y1) = ((cy - 1).max(0), (cy + 1).min(h - 1));
+            if x0 > x1 || y0 > y1 {
+                continue;
+            }
+            for y in y0..=y1 {
+                for &v in &img.row(y as usize)[x0 as usize..=x1 as usize] {
+                    if !self.nonfinite || v.is_finite() {
+                        s += v;
+                        n += 1;
+                    }
+                }
+            }
+        }
+        if n == 0 {
+            f64::NAN
+        } else {
+            sign * s / n as f64
+        }
+    }
+
+    /// The template test at `p0` ([`Template::eval`]) and, sharing its pass over the window, a
+    /// Gaussian-weighted centroid started at `p0`: weights `max(v - t, 0) · exp(-r²/(2σw²))`,
+    /// `σw = max(σt, 0.8)` (not narrower, which would lock tiny dots to pixel centres) and `t`
+    /// the mean of the first window's border; each step moves the centre by `k` times the
+    /// weighted mean offset, `k = 1 + σ²/σw²` (at most 1.6), which undoes the pull of the weight
+    /// towards the current centre (for a Gaussian dot the weighted mean moves only
+    /// `σw²/(σ² + σw²)` of the way) and keeps the iteration contracting whatever the true size;
+    /// two steps. Unbiased for a symmetric dot; the Gaussian weight keeps the neighbours' light
+    /// and far noise out. `sigma` is the dot's sigma.
+    pub(crate) fn measure(
+        &self,
+        img: &Image,
+        sign: f64,
+        p0: [f64; 2],
+        sigma: f64,
+    ) -> Option<Measure> {
+        let (w, h) = (img.width(), img.height());
+        if !(p0[0].is_finite() && p0[1].is_finite()) {
+            return None;
+        }
+        let inv2 = -0.5 / (self.sigma_t * self.sigma_t);
+        let q = (2.0 * inv2).exp();
+        let sw = self.sigma_t.max(0.8);
+        let inv2w = -0.5 / (sw * sw);
+        let qw = (2.0 * inv2w).exp();
+        let same = sw == self.sigma_t;
+        let gain = (1.0 + sigma * sigma / (sw * sw)).min(1.6);
+        let (mut gx, mut gy) = ([0.0f64; 64], [0.0f64; 64]);
+        let (mut wx, mut wy, mut wxd, mut wxdd) =
+            ([0.0f64; 64], [0.0f64; 64], [0.0f64; 64], [0.0f64; 64]);
+        let mut c = p0;
+        let (mut tstat, mut amp, mut tc) = (f64::NAN, f64::NAN, f64::NAN);
+        let mut blob = None;
+        for step in 0..2 {
+            let Some(win) = window_centred(c[0], c[1], self.half).clip(w, h) else {
+                break;
+            };
+            let (x0, y0) = (win.x as usize, win.y as usize);
+            let (nx, ny) = (win.width.min(64), win.height.min(64));
+            let (x1, y1) = (x0 + nx - 1, y0 + ny - 1);
+            let mut b = f64::NAN;
+            if step == 0 {
+                tc = ring_mean(img, sign, x0, x1, y0, y1);
+                b = self.level(img, sign, p0, tc);
+                if !(tc.is_finite() && b.is_finite()) {
+                    return None;
+                }
+            }
+            gauss_samples(&mut gx[..nx], x0 as f64 - c[0], inv2, q);
+            gauss_samples(&mut gy[..ny], y0 as f64 - c[1], inv2, q);
+            if same {
+                wx[..nx].copy_from_slice(&gx[..nx]);
+                wy[..ny].copy_from_slice(&gy[..ny]);
+            } else {
+                gauss_samples(&mut wx[..nx], x0 as f64 - c[0], inv2w, qw);
+                gauss_samples(&mut wy[..ny], y0 as f64 - c[1], inv2w, qw);
+            }
+            for k in 0..nx {
+                let dx = (x0 + k) as f64 - c[0];
+                wxd[k] = wx[k] * dx;
+                wxdd[k] = wx[k] * dx * dx;
+            }
+            let gsum: f64 = gx[..nx].iter().sum();
+            let gxx: f64 = gx[..nx].iter().map(|g| g * g).sum();
+            let (mut sg, mut sgg) = (0.0, 0.0);
+            let (mut s0, mut sx, mut sy, mut sxx, mut syy, mut sxy) =
+                (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+            let mut peak: f64 = 0.0;
+            for (ky, (&g_y, &w_y)) in gy[..ny].iter().zip(&wy[..ny]).enumerate() {
+                let row = &img.row(y0 + ky)[x0..=x1];
+                let dy = (y0 + ky) as f64 - c[1];
+                // r = Σ v g over the finite samples, rs = Σ g and rr = Σ g² over the same.
+                let (mut r, mut rs, mut rr) = (0.0, gsum, gxx);
+                let (mut r0, mut rx, mut rxx) = (0.0, 0.0, 0.0);
+                if self.nonfinite {
+                    (rs, rr) = (0.0, 0.0);
+                    for k in 0..nx {
+                        let v = row[k];
+                        if v.is_finite() {
+                            r += v * gx[k];
+                            rs += gx[k];
+                            rr += gx[k] * gx[k];
+                        }
+                        // NaN.max(0) is 0: non-finite samples weigh nothing.
+                        let wv = (sign * v - tc).max(0.0);
+                        peak = peak.max(wv);
+                        r0 += wv * wx[k];
+                        rx += wv * wxd[k];
+                        rxx += wv * wxdd[k];
+                    }
+                } else {
+                    for k in 0..nx {
+                        let v = row[k];
+                        r += v * gx[k];
+                        let wv = (sign * v - tc).max(0.0);
+                        peak = peak.max(wv);
+                        r0 += wv * wx[k];
+                        rx += wv * wxd[k];
+                        rxx += wv * wxdd[k];
+                    }
+                }
+                sg += g_y * (sign * r - b * rs);
+                sgg += g_y * g_y * rr;
+                s0 += w_y * r0;
+                sx += w_y * rx;
+                sxx += w_y * rxx;
+                sy += w_y * r0 * dy;
+                syy += w_y * r0 * dy * dy;
+                sxy += w_y * rx * dy;
+            }
+            if step == 0 {
+                if sgg <= 0.0 {
+                    return None;
+                }
+                tstat = sg / sgg.sqrt();
+                amp = sg / sgg;
+            }
+            if s0.is_nan() || s0 <= 0.0 {
+                break;
+            }
+            let (mx, my) = (sx / s0, sy / s0);
+            let mom = [sxx / s0 - mx * mx, syy / s0 - my * my, sxy / s0 - mx * my];
+            c = [c[0] + gain * mx, c[1] + gain * my];
+            blob = Some(Blob {
+                centre: c,
+                mom,
+                peak,
+                mass: s0,
+            });
+        }
+        Some(Measure {
+            t: tstat,
+            a: amp,
+            blob,
+        })
+    }
+
     /// Matched-filter test of a dot at the sub-pixel point `p`: with the Gaussian template
     /// `g = exp(-|x - p|²/(2σt²))` over the `(2·half+1)²` window and `b` the local level,
     /// returns `T = Σ(v - b) g / ‖g‖` (counts; its noise is about the pixel noise, so `T / σ_T`
@@ -256,30 +352,7 @@ impl Template {
         let win = window_centred(p[0], p[1], self.half).clip(w, h)?;
         let (x0, y0) = (win.x as usize, win.y as usize);
         let (x1, y1) = (x0 + win.width - 1, y0 + win.height - 1);
-        let b = match &self.cells {
-            None => ring_mean(img, sign, x0, x1, y0, y1),
-            Some(offsets) => {
-                let (mut s, mut n) = (0.0, 0usize);
-                for o in offsets {
-                    let Some(blk) = window_centred(p[0] + o[0], p[1] + o[1], 1).clip(w, h) else {
-                        continue;
-                    };
-                    for y in blk.y as usize..blk.y as usize + blk.height {
-                        for &v in &img.row(y)[blk.x as usize..blk.x as usize + blk.width] {
-                            if v.is_finite() {
-                                s += v;
-                                n += 1;
-                            }
-                        }
-                    }
-                }
-                if n == 0 {
-                    f64::NAN
-                } else {
-                    sign * s / n as f64
-                }
-            }
-        };
+        let b = self.level(img, sign, p, ring_mean(img, sign, x0, x1, y0, y1));
         if !b.is_finite() {
             return None;
         }
@@ -360,11 +433,12 @@ pub(crate) fn interstitial_noise(
         (lo.min(s.j), hi.max(s.j))
     });
     let mut cell = IndexGrid::new(imin, imax, jmin, jmax, f64::NAN);
-    // Every other row of cells is plenty for a robust spread.
+    // About 2000 cells (whole rows, spread over the lattice) are plenty for a robust spread.
+    let row_step = (sites.len() / 2000).max(1) as i32;
     let sites: Vec<GridIndex> = sites
         .iter()
         .copied()
-        .filter(|s| s.j.rem_euclid(2) == 0)
+        .filter(|s| (s.j - jmin) % row_step == 0)
         .collect();
     for s in &sites {
         let corners: &[(i32, i32)] = match kind {
@@ -455,19 +529,26 @@ pub(crate) fn classify(ctx: &Ctx, sites: &[Site]) -> Vec<Classified> {
     let mut snr = vec![f64::NEG_INFINITY; n];
     let mut vals = vec![0.0; n];
     let mut pos_dec: Vec<[f64; 2]> = sites.iter().map(|t| t.predicted).collect();
+    let mut blobs: Vec<Option<Blob>> = vec![None; n];
     for (k, st) in sites.iter().enumerate() {
-        if let Some((t, a)) = tpl.eval(ctx.img, ctx.sign, st.predicted) {
+        // The test and the centroid start at the searched peak when there is one.
+        let p0 = st.peak.map_or(st.predicted, |p| p.pos());
+        let searched = st.peak.is_some() && dist2(p0, st.predicted) > 0.25;
+        if let Some(m) = tpl.measure(ctx.img, ctx.sign, p0, ctx.sigma) {
+            snr[k] = m.t / noise - if searched { st.peak_extra } else { 0.0 };
+            vals[k] = m.a;
+            pos_dec[k] = p0;
+            blobs[k] = m.blob;
+        }
+        // A weak result at a searched peak: the prediction itself may be better.
+        if searched
+            && snr[k] < cfg.min_snr + 1.0
+            && let Some((t, a)) = tpl.eval(ctx.img, ctx.sign, st.predicted)
+            && t / noise > snr[k]
+        {
             snr[k] = t / noise;
             vals[k] = a;
-        }
-        if let Some(pk) = st.peak
-            && dist2(pk.pos(), st.predicted) > 0.25
-            && let Some((t, a)) = tpl.eval(ctx.img, ctx.sign, pk.pos())
-            && t / noise - st.peak_extra > snr[k]
-        {
-            snr[k] = t / noise - st.peak_extra;
-            vals[k] = a;
-            pos_dec[k] = pk.pos();
+            pos_dec[k] = st.predicted;
         }
     }
     let cand: Vec<bool> = (0..n)
@@ -497,7 +578,6 @@ pub(crate) fn classify(ctx: &Ctx, sites: &[Site]) -> Vec<Classified> {
     }
 
     // 2. Centres and shapes of the found dots.
-    let half_c = ((2.5 * ctx.sigma.max(0.8)).ceil().min((0.5 * s).round()) as usize).max(1);
     let mut centre: Vec<[f64; 2]> = sites.iter().map(|t| t.predicted).collect();
     let mut shape = vec![Shape::default(); n];
     for k in 0..n {
@@ -505,16 +585,16 @@ pub(crate) fn classify(ctx: &Ctx, sites: &[Site]) -> Vec<Classified> {
             continue;
         }
         let p = sites[k].peak.map_or(sites[k].predicted, |p| p.pos());
-        let blob = centroid(ctx.img, ctx.sign, p, ctx.sigma, half_c);
+        let blob = blobs[k];
         let (c, mom) = blob.map_or((p, [0.0; 3]), |b| (b.centre, b.mom));
-        // A centroid that wandered off its peak (a brighter neighbour) is not trusted.
+        // A centroid that wandered off its start (a brighter neighbour) is not trusted.
         centre[k] = if dist2(c, p) <= (0.3 * s).powi(2) {
             c
         } else {
             p
         };
         let size = blob.map_or(0.0, |b| {
-            (b.mass / (2.0 * std::f64::consts::PI * b.peak)).sqrt()
+            (b.mass / (2.0 * std::f64::consts::PI * b.peak.max(1e-300))).sqrt()
         });
         // The amplitude at the centre; the decision's value serves when within 0.3 px of it.
         let amp = if dist2(centre[k], pos_dec[k]) <= 0.09 {

@@ -7,7 +7,7 @@ use serde::{Deserialize, Serialize};
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum LatticeKind {
-    /// Square grid [default]: `b` is `a` turned by about +90° (towards +y).
+    /// Square grid \[default\]: `b` is `a` turned by about +90° (towards +y).
     #[default]
     Square,
     /// Hexagonal grid: `b` is `a` turned by about +60° (towards +y), as
@@ -19,7 +19,7 @@ pub enum LatticeKind {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Polarity {
-    /// Bright dots on a dark background [default].
+    /// Bright dots on a dark background \[default\].
     #[default]
     Bright,
     /// Dark dots on a bright background: the image is negated before detection (every
@@ -62,29 +62,31 @@ impl Polarity {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct DetectConfig {
-    /// Approximate dot spacing (nearest-neighbour distance), px [None: estimated].
+    /// Approximate dot spacing (nearest-neighbour distance), px \[None: estimated\].
     pub spacing: Option<f64>,
-    /// Approximate dot diameter d = 4σ, px [None: estimated].
+    /// Approximate dot diameter d = 4σ, px \[None: estimated\].
     pub diameter: Option<f64>,
-    /// Square or hexagonal lattice [square]. The measured basis angle must agree within 15°.
+    /// Square or hexagonal lattice \[square\]. The measured basis angle must agree within 15°.
     pub lattice: LatticeKind,
-    /// Bright dots on dark or dark dots on bright [bright].
+    /// Bright dots on dark or dark dots on bright \[bright\].
     pub polarity: Polarity,
-    /// A site counts as a dot only if its filtered peak exceeds `min_snr` times the robust noise
-    /// of the filtered image [4.0].
+    /// A site counts as a dot only if its matched-filter statistic reaches `min_snr` times the
+    /// statistic's spread where there is no dot, i.e. a signal-to-noise ratio \[4.0\] (see the
+    /// crate documentation, step 5) ...
     pub min_snr: f64,
-    /// ... and `missing_ratio` times the median peak of its neighbours [0.1]; otherwise MISSING.
+    /// ... and its amplitude `missing_ratio` times its neighbours' median \[0.1\]; otherwise the
+    /// site is MISSING.
     pub missing_ratio: f64,
-    /// A found dot below `faint_ratio` times the neighbours' median peak is FAINT [0.5].
+    /// A found dot below `faint_ratio` times its neighbours' median amplitude is FAINT \[0.5\].
     pub faint_ratio: f64,
-    /// Total degree of the polynomial grid → image map, 1 (affine) to 4 [3]; lowered
+    /// Total degree of the polynomial grid → image map, 1 (affine) to 4 \[3\]; lowered
     /// automatically when too few dots support it.
     pub map_degree: u8,
     /// Half-width of the square fit window, px [None: `max(2, min(round(spacing/2), ceil(1.5 d)))`,
     /// i.e. the dot's Voronoi cell on a square lattice, smaller for small dots].
     pub window_half_width: Option<usize>,
     /// [`crate::track`]: radius, as a fraction of the spacing, within which a dot is searched
-    /// around its reference position without a predictor [0.45]; must lie in (0, 0.5].
+    /// around its reference position without a predictor \[0.45\]; must lie in (0, 0.5].
     pub search_radius: f64,
 }
 

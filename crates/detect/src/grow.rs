@@ -139,7 +139,8 @@ fn add(p: [f64; 2], q: [f64; 2], s: f64) -> [f64; 2] {
     [p[0] + s * q[0], p[1] + s * q[1]]
 }
 
-/// Prediction of the site `(i, j)` from the found sites of its 5x5 index neighbourhood:
+/// Prediction of the site `(i, j)` from found sites of its index neighbourhood (`nb`: index
+/// offsets, position, contrast):
 /// weighted (1/index distance²) affine least squares `p = c0 + c1 di + c2 dj` evaluated at
 /// the site, or, with fewer than three non-collinear neighbours, the nearest neighbour plus the
 /// global basis. Also returns the neighbours' median contrast.

@@ -34,32 +34,47 @@
 //! ```
 //!
 //! # Method
-//! 1. **Lattice from the image.** The autocorrelation of a crop (128² by default, larger when
-//!    the spacing calls for it) has a peak at every lattice vector; the shortest clear peak
-//!    and the shortest one in another direction (confirmed by a peak at their sum or
-//!    difference) give the basis, whatever the rotation, missing dots or brightness. Its central
-//!    lobe gives the dot size. A spacing hint only sizes the crop: the image wins (a hint wrong
-//!    by 2x still works; [`DetectStats::spacing_hint_ratio`] says by how much it was off).
+//! 1. **Lattice from the image.** The autocorrelation of a crop (64² first, doubling up to 512²
+//!    until a lattice shows) has a peak at every lattice vector; the shortest clear peak and the
+//!    shortest one in another direction (confirmed by a peak at their sum or difference) give
+//!    the basis, whatever the rotation, missing dots or brightness; a fit of the lattice's
+//!    lobes near lag 0 gives a first dot size. A spacing hint only sizes the first crop: the
+//!    image wins (a hint wrong by 2x still works; [`DetectStats::spacing_hint_ratio`] reports
+//!    measured / hint).
 //! 2. **Dot map.** A band-pass image: Gaussian smoothing near the dot size minus the mean over
-//!    one lattice period (removing background, vignetting and dark regions' level), binned for
-//!    large dots. A dot is a positive peak whose height is its contrast.
+//!    one lattice period (removing the background, vignetting and dark regions' level), binned
+//!    for large dots. A dot is a positive peak.
 //! 3. **Grid index by region growing** from a dot near the centre of the kept region whose four
 //!    neighbours are confirmed: each next site is predicted from the dots already found around
-//!    it (local affine fit over the 5x5 index neighbourhood) and accepted when the dot map peaks
-//!    within 0.3 spacing at 30 % or more of the neighbours' contrast. Isolated missing dots or
-//!    lines of them are bridged; noise, dust and scratches between sites never become dots.
-//! 4. **Grid map.** A polynomial (total degree 3 by default) from `(i, j)` to `(x, y)` fitted
-//!    by least squares to the grown dots, with outliers beyond 4 MAD rejected; every site is
-//!    predicted by it ([`Detection::predict`]), even where a dot is faint or missing.
-//! 5. **Classification** of each site (strongest dot-map peak within max(0.25 spacing, 1.5 px)
-//!    of its prediction):
-//!    a dot is found when its contrast is at least `min_snr` times the robust noise of the dot
-//!    map (MAD of differences between neighbouring cell centres) and at least `missing_ratio`
-//!    of its neighbours' median contrast; otherwise the site is MISSING and its `centre` is the
-//!    prediction. A found dot's `centre` is its Gaussian-weighted, background-subtracted
-//!    centroid, started at the dot-map peak (weight `exp(-r²/2σw²)`, `σw = max(σ, 0.8)`, level
-//!    = mean of the window border, window half-width `min(ceil(2.5σw), round(spacing/2))`, two
-//!    steps each scaled by `1 + σ²/σw²` to undo the weight's pull).
+//!    it (weighted local affine fit over the 5x5 index neighbourhood) and accepted when the dot
+//!    map peaks within 0.3 spacing, at `min_snr` times the map's noise (measured at the cell
+//!    centres around the start) and at 30 % or more of the neighbours' peaks. Isolated missing
+//!    dots and lines of them are bridged; noise, dust and scratches between sites never become
+//!    dots.
+//! 4. **Grid map.** A polynomial (total degree 3 by default) from `(i, j)` to `(x, y)` fitted by
+//!    least squares to the grown dots in the kept region, affine first, with points beyond
+//!    4 MAD left out; every site is predicted by it ([`Detection::predict`]), even where a dot
+//!    is faint or missing. **Dot size:** a least-squares fit of the lattice of Gaussian dots
+//!    (each dot with its 8 neighbours, positions from the map) to up to 32 patches; it stays
+//!    right for dots that overlap (diameter up to the spacing), where the autocorrelation
+//!    cannot tell the size.
+//! 5. **Classification** of every site within two sites of a grown dot: a matched-filter test
+//!    at the predicted position, `T = Σ(v - b) g / ‖g‖` with `g` a Gaussian of the dot's size
+//!    and `b` the local level (the window border, or the surrounding cell centres for
+//!    overlapping dots). A dot is found when `T` is at least `min_snr` times the spread of `T`
+//!    at the lattice's cell centres (where there is no dot) and its amplitude
+//!    `A = Σ(v - b) g / Σg²` at least `missing_ratio` of its neighbours' median; otherwise the
+//!    site is MISSING and its `centre` is the prediction (a test at a searched peak away from the
+//!    prediction needs one more unit of signal-to-noise). A found dot's `centre` is its
+//!    Gaussian-weighted, background-subtracted centroid (weight `exp(-r²/2σw²)`,
+//!    `σw = max(sqrt(σ² + 1/12), 0.8)`, level = mean of the window border, window half-width
+//!    `min(ceil(2.5 sqrt(σ² + 1/12)), round(spacing/2))`, two steps each scaled by
+//!    `1 + σ²/σw²` to undo the weight's pull), started at the grown peak or the prediction.
+//!
+//! [`track`] searches each reference dot in the dot map of the other image: within
+//! `search_radius` (0.45) spacing of its reference position without a predictor, then, growing
+//! outward from the largest region of small displacement, within 0.3 spacing of the position
+//! predicted by the neighbours' median displacement; step 5 then classifies the sites.
 //!
 //! # Conventions
 //! - **Grid index:** `i` along `a`, the lattice vector closest to +x; `j` along `b`, the one at
@@ -70,26 +85,26 @@
 //!   images whose dots moved; therefore [`track`] never re-anchors: other images take the
 //!   reference's indices.
 //! - **Reported sites:** every found dot whose centre lies on a kept pixel of the image or
-//!   next to one (the 3x3 pixels around it; a dot cut by the mask edge is still reported, with
-//!   MASKED); and every MISSING site whose predicted position lies on a kept pixel
-//!   and that is enclosed along its grid row or column by found dots or the edge of the kept
-//!   region within two sites (so the area beyond the edge of a target that does not fill the
-//!   image is not reported as missing). A site whose dot lies on a kept pixel is reported even when its
-//!   window is cut: it is flagged BORDER (the window reaches past the image and `window` is
-//!   clipped) or MASKED (a window pixel is masked out).
+//!   next to one (the 3x3 pixels around it); and every MISSING site whose predicted position
+//!   lies on a kept pixel and that is enclosed along its grid row or column by found dots or the
+//!   edge of the kept region within two sites (so the area beyond the edge of a target that
+//!   does not fill the image is not reported as missing). A reported site whose window is cut
+//!   is flagged BORDER (the window reaches past the image; `window` is clipped) or MASKED (a
+//!   window pixel is masked out).
 //! - **Fit window:** square, half-width `window_half_width` or `max(2, min(round(spacing/2),
 //!   ceil(1.5 d)))` around the centre (the dot's Voronoi cell on a square lattice, smaller for
 //!   small dots), clipped to the image.
-//! - **Flags:** MISSING (no dot), FAINT (peak height above the centroid window border below
-//!   `faint_ratio` of the neighbours' median), DEFECT (over 2.5x brighter, size outside
-//!   0.67-1.5x or elongation 1.4x the neighbours', or off its grid position by more than 0.25
-//!   spacing beyond the neighbours' offset), MERGED (elongated along a lattice direction and
-//!   larger than the neighbours), BORDER, MASKED, NAN_PIXELS.
+//! - **Flags:** MISSING (no dot), FAINT (template amplitude at the centre below `faint_ratio`
+//!   of the 3x3 neighbours' median), DEFECT (over 2.5x their amplitude, size outside 0.67-1.5x
+//!   or elongation over 1.4x theirs, or off its grid position by more than 0.25 spacing beyond
+//!   their offset), MERGED (elongated along a lattice direction and larger than the
+//!   neighbours), BORDER, MASKED, NAN_PIXELS (the window holds non-finite samples, which are
+//!   left out everywhere). Shape tests run only on dots at 8 times the noise or more.
 
 mod acf;
+mod api;
 mod classify;
 mod config;
-mod detect;
 mod error;
 mod fft;
 mod filter;
@@ -98,7 +113,7 @@ mod linalg;
 mod map;
 mod size;
 
+pub use api::{DetectStats, Detection, detect, track};
 pub use config::{DetectConfig, LatticeKind, Polarity};
-pub use detect::{DetectStats, Detection, detect, track};
 pub use error::DetectError;
 pub use map::GridMap;

@@ -204,10 +204,10 @@ impl GridMap {
         if points.len() < 3 {
             return None;
         }
-        // The fit works on a regular subsample of at most about 4000 points (plenty for 15
+        // The fit works on a regular subsample of at most about 2500 points (plenty for 15
         // terms); the final inlier mask and rms cover every point.
         let all = points;
-        let stride = all.len().div_ceil(4000).max(1);
+        let stride = all.len().div_ceil(2500).max(1);
         let sub: Vec<(f64, f64, [f64; 2])> = all.iter().step_by(stride).copied().collect();
         let points = &sub[..];
         let mut inl = vec![true; points.len()];

@@ -77,7 +77,7 @@ fn patch_rss(img: &Image, sign: f64, patch: &Patch, half: usize, sigma: f64) -> 
 pub(crate) fn fit_sigma(img: &Image, sign: f64, patches: &[Patch], spacing: f64) -> Option<f64> {
     let half = ((0.5 * spacing).round() as usize).max(1);
     let (lo, hi) = (0.3f64, (0.35 * spacing).max(0.31));
-    let k = 20;
+    let k = 16;
     let sig = |t: f64| lo * (hi / lo).powf(t / (k - 1) as f64);
     // Patches usable at every σ of the grid (the same set for every σ).
     let usable: Vec<&Patch> = patches

@@ -32,7 +32,8 @@ fn check(c: &Case) -> Result<(), String> {
         sc.median_error,
         sc.worst_error
     );
-    if sc.found != sc.expected || sc.spurious != 0 {
+    // The rough centre (the fit stage refines it) is within a tenth of a pixel or so.
+    if sc.found != sc.expected || sc.spurious != 0 || sc.median_error > 0.2 {
         return Err(format!(
             "{c:?}: found {}/{} spurious {} (spacing {:.3}, diameter {:.2}, stats {:?})\n  {}",
             sc.found,

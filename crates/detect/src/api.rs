@@ -31,7 +31,8 @@ pub struct DetectStats {
     pub masked: usize,
     pub defect: usize,
     pub merged: usize,
-    /// Robust noise of the filtered image (counts): the unit of `min_snr`.
+    /// Robust spread of the matched-filter statistic at the lattice's cell centres (counts):
+    /// the unit of `min_snr` (about the pixel noise).
     pub noise: f64,
     /// RMS residual of the grid map over the dots it was fitted to (px).
     pub map_rms: f64,
@@ -60,10 +61,11 @@ pub struct Detection {
     /// lattice of Gaussian dots around up to 32 well-surrounded dots, or the autocorrelation's
     /// estimate when there are too few (a typical value: the fit stage measures each dot).
     pub diameter: f64,
-    /// One seed per reported site, sorted by `(j, i)` for [`detect`]; in the reference's order
-    /// for [`track`].
+    /// One seed per reported site, in grid order (`j`, then `i`); [`track`] keeps the
+    /// reference's seeds and order.
     pub seeds: Vec<Seed>,
-    /// Filtered contrast of each seed's dot (counts, same order as `seeds`; 0 when MISSING).
+    /// Amplitude of each seed's dot above the local level (counts, the least-squares amplitude
+    /// of a Gaussian of the dot's size at its centre; same order as `seeds`; 0 when MISSING).
     pub contrast: Vec<f64>,
     pub stats: DetectStats,
 }
@@ -74,9 +76,12 @@ impl Detection {
         self.map.predict(i, j)
     }
 
-    /// The seed of a grid index, if reported.
+    /// The seed of a grid index, if reported (binary search: the seeds are in grid order).
     pub fn seed(&self, idx: GridIndex) -> Option<&Seed> {
-        self.seeds.iter().find(|s| s.index == idx)
+        self.seeds
+            .binary_search_by_key(&(idx.j, idx.i), |s| (s.index.j, s.index.i))
+            .ok()
+            .map(|k| &self.seeds[k])
     }
 }
 
@@ -116,19 +121,20 @@ fn check_inputs(img: &Image, mask: Option<&Mask>, name: &str) -> Result<Inputs, 
     // Range of the finite samples (a constant image has none), whether any is non-finite, and
     // the centroid of the kept region.
     let data = img.data();
-    // Eight independent lanes so that the compiler vectorises the reductions.
-    let (mut lo8, mut hi8, mut bad8) = ([f64::INFINITY; 8], [f64::NEG_INFINITY; 8], [false; 8]);
+    // Eight independent lanes so that the compiler vectorises the reductions; `v · 0` is NaN
+    // exactly for non-finite samples, and a NaN in a lane sum stays NaN.
+    let (mut lo8, mut hi8, mut bad8) = ([f64::INFINITY; 8], [f64::NEG_INFINITY; 8], [0.0f64; 8]);
     let chunks = data.chunks_exact(8);
     let rest = chunks.remainder();
     for ch in chunks {
         for k in 0..8 {
             let v = ch[k];
-            bad8[k] |= !v.is_finite();
+            bad8[k] += v * 0.0;
             lo8[k] = if v < lo8[k] { v } else { lo8[k] };
             hi8[k] = if v > hi8[k] { v } else { hi8[k] };
         }
     }
-    let nonfinite = bad8.iter().any(|&b| b) || rest.iter().any(|v| !v.is_finite());
+    let nonfinite = bad8.iter().any(|b| b.is_nan()) || rest.iter().any(|v| !v.is_finite());
     let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
     if nonfinite {
         for &v in data.iter().filter(|v| v.is_finite()) {
@@ -370,6 +376,13 @@ pub fn detect(
             }
         };
         let spacing0 = 0.5 * (norm(a) + norm(b));
+        if spacing0 < 2.5 {
+            last_err = Some(DetectError::NoLattice {
+                image: name.clone(),
+                reason: format!("a lattice of {spacing0:.2} px is below the supported 2.5 px"),
+            });
+            continue;
+        }
         let sigma = cfg.diameter.map_or(est.sigma, |d| d / 4.0);
         let fp = FilterParams::new(spacing0, sigma);
         let dmap = DotMap::build(image, sign, fill, nonfinite, &fp);
@@ -409,10 +422,10 @@ pub fn detect(
             });
             continue;
         }
-        setup = Some((est, spacing0, sigma, fp, dmap, grown));
+        setup = Some((est, spacing0, sigma, fp, grown));
         break;
     }
-    let Some((est, spacing0, sigma, fp, dmap, grown)) = setup else {
+    let Some((est, spacing0, sigma, fp, grown)) = setup else {
         return Err(mismatch.or(last_err).unwrap_or(DetectError::NoLattice {
             image: name,
             reason: "image too small for the analysis".into(),
@@ -515,7 +528,6 @@ pub fn detect(
     }
     // Sites in grid order (j, then i); a grown dot keeps its peak when the map agrees with it.
     let r_s = (0.25 * spacing).max(1.5);
-    let mut buf = Vec::new();
     let mut sites: Vec<Site> = Vec::new();
     for (i, j, v) in seen.iter() {
         let Some(grown_peak) = *v else { continue };
@@ -524,10 +536,9 @@ pub fn detect(
         if p[0] < -0.5 || p[1] < -0.5 || p[0] > w as f64 - 0.5 || p[1] > h as f64 - 0.5 {
             continue;
         }
-        let peak = match grown_peak {
-            Some(q) if dist2(q.pos(), p) <= r_s * r_s => Some(q),
-            _ => dmap.strongest(p, r_s, &mut buf),
-        };
+        // The grown dot's peak when the map agrees with it; else the test and the centroid
+        // start at the prediction.
+        let peak = grown_peak.filter(|q| dist2(q.pos(), p) <= r_s * r_s);
         sites.push(Site {
             index: idx,
             predicted: p,
@@ -675,8 +686,12 @@ fn fallback_noise(stat: impl Fn([f64; 2]) -> Option<f64>, w: usize, h: usize, sp
 /// 0.45 spacing). Dots whose displacement agrees with their neighbours' are confident; starting
 /// from the confident dot of smallest displacement, the lattice is then grown outward, each dot
 /// searched within 0.3 spacing of its reference position plus the median displacement of the
-/// neighbours already tracked (5x5 index neighbourhood), so smoothly varying displacements larger
-/// than half a spacing are followed. `predicted` = reference position + that predictor.
+/// neighbours already tracked (3x3 index neighbourhood, 5x5 when it has fewer than two), so
+/// smoothly varying displacements larger than half a spacing are followed. The growth starts
+/// from the largest connected group of dots whose first-pass displacement is under a quarter
+/// spacing and agrees with their neighbours' (a periodic target cannot tell a displacement from
+/// the same minus a lattice vector: the largest such group is taken to be truly at rest).
+/// `predicted` = reference position + the neighbours' median displacement.
 pub fn track(
     image: &Image,
     mask: Option<&Mask>,
@@ -753,14 +768,20 @@ pub fn track(
     let mut starts: Vec<(f64, usize)> = Vec::new();
     for k in 0..n {
         let Some(p) = first[k] else { continue };
-        neighbours(k, 2, &mut nb);
-        tx.clear();
-        ty.clear();
-        for &o in &nb {
-            if let Some(pq) = first[o] {
-                let d = disp(&pq, o);
-                tx.push(d[0]);
-                ty.push(d[1]);
+        // The 3x3 index neighbours, or the 5x5 ones when fewer than three have a peak.
+        for r in 1..=2 {
+            neighbours(k, r, &mut nb);
+            tx.clear();
+            ty.clear();
+            for &o in &nb {
+                if let Some(pq) = first[o] {
+                    let d = disp(&pq, o);
+                    tx.push(d[0]);
+                    ty.push(d[1]);
+                }
+            }
+            if tx.len() >= 3 {
+                break;
             }
         }
         if tx.len() >= 3 {
@@ -861,18 +882,23 @@ pub fn track(
             if state[t] != St::Queued {
                 continue;
             }
-            neighbours(t, 2, &mut nb);
-            tx.clear();
-            ty.clear();
-            vals.clear();
-            for &o in &nb {
-                if state[o] == St::Accepted
-                    && let Some(p) = result[o]
-                {
-                    let d = disp(&p, o);
-                    tx.push(d[0]);
-                    ty.push(d[1]);
-                    vals.push(p.v);
+            for r in 1..=2 {
+                neighbours(t, r, &mut nb);
+                tx.clear();
+                ty.clear();
+                vals.clear();
+                for &o in &nb {
+                    if state[o] == St::Accepted
+                        && let Some(p) = result[o]
+                    {
+                        let d = disp(&p, o);
+                        tx.push(d[0]);
+                        ty.push(d[1]);
+                        vals.push(p.v);
+                    }
+                }
+                if tx.len() >= 2 {
+                    break;
                 }
             }
             if tx.is_empty() {
@@ -910,14 +936,19 @@ pub fn track(
     // Sites: predicted = reference position + the neighbours' median displacement.
     let mut sites = Vec::with_capacity(n);
     for k in 0..n {
-        neighbours(k, 2, &mut nb);
-        tx.clear();
-        ty.clear();
-        for &o in &nb {
-            if let Some(p) = result[o] {
-                let d = disp(&p, o);
-                tx.push(d[0]);
-                ty.push(d[1]);
+        for r in 1..=2 {
+            neighbours(k, r, &mut nb);
+            tx.clear();
+            ty.clear();
+            for &o in &nb {
+                if let Some(p) = result[o] {
+                    let d = disp(&p, o);
+                    tx.push(d[0]);
+                    ty.push(d[1]);
+                }
+            }
+            if tx.len() >= 2 {
+                break;
             }
         }
         let pd = if tx.len() >= 2 {
