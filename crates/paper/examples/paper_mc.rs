@@ -66,6 +66,22 @@ fn parse() -> Result<Args, String> {
     Ok(a)
 }
 
+/// CPU time of this process (user + system, s) from /proc/self/stat (clock ticks of 1/100 s,
+/// Linux's USER_HZ); NaN where unavailable.
+fn cpu_seconds() -> f64 {
+    let Ok(stat) = std::fs::read_to_string("/proc/self/stat") else {
+        return f64::NAN;
+    };
+    // fields after the command name (which is in parentheses and may contain spaces)
+    let rest = stat.rsplit_once(')').map_or("", |(_, r)| r);
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let tick = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok());
+    match (tick(11), tick(12)) {
+        (Some(u), Some(s)) => (u + s) / 100.0,
+        _ => f64::NAN,
+    }
+}
+
 fn create(dir: &Path, name: &str) -> Result<BufWriter<File>, Box<dyn std::error::Error>> {
     let p = dir.join(name);
     Ok(BufWriter::new(
@@ -102,33 +118,19 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut results = Vec::new();
     let mut times = Vec::new();
     for name in &args.studies {
-        let mut cfg = match name.as_str() {
-            "volumetric" | "volumetric-effective" | "volumetric-brightest" => {
-                StudyConfig::volumetric(args.draws, args.realisations)
-            }
-            "bos" | "bos-effective" | "bos-fixed-noise" => {
-                StudyConfig::bos(args.draws, args.realisations)
-            }
-            _ => continue,
+        let Some(mut cfg) = StudyConfig::named(name, args.draws, args.realisations) else {
+            continue; // "ar", below
         };
         cfg.seed = args.seed;
-        cfg.name = name.clone();
-        if name.ends_with("-effective") {
-            cfg.rendering = Rendering::EffectiveModel;
-        }
-        if name.ends_with("-brightest") {
-            cfg.noise_reference = NoiseReference::BrightestPixel;
-        }
-        if name.ends_with("-fixed-noise") {
-            cfg.noise_reference = NoiseReference::ReferencePeak;
-        }
+        let cpu0 = cpu_seconds();
         let r = pool.install(|| run_study(&cfg))?;
+        let cpu = cpu_seconds() - cpu0;
         eprintln!(
-            "{name}: {} draws x {} realisations in {:.1} s on {} threads",
+            "{name}: {} draws x {} realisations in {:.1} s on {} threads ({cpu:.1} s CPU)",
             cfg.draws, cfg.realisations, r.wall_s, r.threads
         );
         times.push(format!(
-            "- {name}: {} fits in {:.1} s ({} threads)",
+            "- {name}: {} fits in {:.1} s wall, {cpu:.1} s CPU ({} threads)",
             r.groups[0].fits + r.groups[0].failures,
             r.wall_s,
             r.threads
@@ -155,10 +157,16 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             seed: args.seed,
             ..ArStudyConfig::default()
         };
+        let cpu0 = cpu_seconds();
         let r = pool.install(|| run_ar_study(&cfg))?;
-        eprintln!("ar: {} cases in {:.1} s", r.rows.len(), r.wall_s);
+        let cpu = cpu_seconds() - cpu0;
+        eprintln!(
+            "ar: {} cases in {:.1} s ({cpu:.1} s CPU)",
+            r.rows.len(),
+            r.wall_s
+        );
         times.push(format!(
-            "- ar: {} gradient dots x {} + reference x {} fits in {:.1} s ({} threads)",
+            "- ar: {} gradient dots x {} + reference x {} fits in {:.1} s wall, {cpu:.1} s CPU ({} threads)",
             r.rows.len(),
             cfg.realisations,
             cfg.reference_realisations,
@@ -179,7 +187,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         write_ar_markdown(&r, &mut table)?;
         summary.push_str(&String::from_utf8(table)?);
     }
-    summary.push_str("\n## Wall times\n\n");
+    summary.push_str(&format!(
+        "\n## Wall times\n\nLoad average at the end: {}\n\n",
+        std::fs::read_to_string("/proc/loadavg")
+            .unwrap_or_default()
+            .split_whitespace()
+            .take(3)
+            .collect::<Vec<_>>()
+            .join(" ")
+    ));
     summary.push_str(&times.join("\n"));
     summary.push('\n');
     let mut f = create(&args.out, "summary.md")?;

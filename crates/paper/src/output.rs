@@ -24,7 +24,11 @@ fn round_field(field: &str) -> Option<String> {
     Some(r.to_string())
 }
 
-fn write_csv<T: Serialize>(what: &'static str, rows: &[T], w: impl Write) -> Result<(), PaperError> {
+fn write_csv<T: Serialize>(
+    what: &'static str,
+    rows: &[T],
+    w: impl Write,
+) -> Result<(), PaperError> {
     let csv_err = |source| PaperError::Csv { what, source };
     let mut raw = csv::Writer::from_writer(Vec::new());
     for r in rows {
@@ -46,7 +50,8 @@ fn write_csv<T: Serialize>(what: &'static str, rows: &[T], w: impl Write) -> Res
             .collect();
         wtr.write_record(&out).map_err(csv_err)?;
     }
-    wtr.flush().map_err(|source| PaperError::Io { what, source })
+    wtr.flush()
+        .map_err(|source| PaperError::Io { what, source })
 }
 
 /// One line per draw ([`DrawRow`]'s fields as columns, `NaN` where a value does not exist:
@@ -68,6 +73,15 @@ pub fn rendering_label(r: Rendering) -> String {
     }
 }
 
+/// Three decimals, or scientific notation below 0.001.
+fn short(v: f64) -> String {
+    if v != 0.0 && v.abs() < 1e-3 {
+        format!("{v:.1e}")
+    } else {
+        format!("{v:.3}")
+    }
+}
+
 /// A Markdown table of the studies' group summaries: one line per study and group.
 pub fn write_study_markdown(results: &[&StudyResult], mut w: impl Write) -> Result<(), PaperError> {
     let io = |source| PaperError::Io {
@@ -76,23 +90,28 @@ pub fn write_study_markdown(results: &[&StudyResult], mut w: impl Write) -> Resu
     };
     writeln!(
         w,
-        "| study | rendering | group | draws | σ (px) | max blur σ (px) / σ_ref | MC std (px) | Eq. 35 (px) | MC − Eq. 35 (px): mean ± s.e. (median) | MC / bound − 1: median (median \\|·\\|) | (MC / bound)²: mean ± s.e. | fits (singular) | failures |"
+        "| study | rendering | group | draws | σ (px) | max blur σ (px) | max blur σ / σ_ref | non-Gaussian draws | MC std (px) | Eq. 35 (px) | MC − Eq. 35 (px): mean ± s.e. (median) | MC / bound − 1: median (median \\|·\\|) | (MC / bound)²: mean ± s.e. | fits (singular) | failures |"
     )
     .map_err(io)?;
-    writeln!(w, "|---|---|---|---|---|---|---|---|---|---|---|---|---|").map_err(io)?;
+    writeln!(
+        w,
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
+    )
+    .map_err(io)?;
     for r in results {
         for g in &r.groups {
             writeln!(
                 w,
-                "| {} | {} | {} | {} | {:.3}-{:.3} | {:.3} / {:.2} | {:.4} | {:.4} | {:+.4} ± {:.4} ({:+.4}) | {:+.3} ({:.3}) | {:.3} ± {:.3} | {} ({}) | {} |",
+                "| {} | {} | {} | {} | {:.3}-{:.3} | {} | {} | {} | {:.4} | {:.4} | {:+.4} ± {:.4} ({:+.4}) | {:+.3} ({:.3}) | {:.3} ± {:.3} | {} ({}) | {} |",
                 r.config.name,
                 rendering_label(r.config.rendering),
                 g.label,
                 g.draws,
                 g.sigma_min,
                 g.sigma_max,
-                g.blur_max,
-                g.blur_over_ref_max,
+                short(g.blur_max),
+                short(g.blur_over_ref_max),
+                g.non_gaussian,
                 g.mc_std_mean,
                 g.eq35_mean,
                 g.offset_eq35_mean,
@@ -253,9 +272,18 @@ mod tests {
 
     #[test]
     fn fields_are_rounded_to_six_digits() {
-        assert_eq!(round_field("0.041992517247561924").as_deref(), Some("0.0419925"));
-        assert_eq!(round_field("10616.327026808409").as_deref(), Some("10616.3"));
-        assert_eq!(round_field("2.728066552881714e-6").as_deref(), Some("0.00000272807"));
+        assert_eq!(
+            round_field("0.041992517247561924").as_deref(),
+            Some("0.0419925")
+        );
+        assert_eq!(
+            round_field("10616.327026808409").as_deref(),
+            Some("10616.3")
+        );
+        assert_eq!(
+            round_field("2.728066552881714e-6").as_deref(),
+            Some("0.00000272807")
+        );
         assert_eq!(round_field("NaN"), None);
         assert_eq!(round_field("1000"), None);
         assert_eq!(round_field("true"), None);

@@ -278,3 +278,25 @@ fn outputs() {
     let png = fig5_figure(&r).unwrap().to_png().unwrap();
     assert_eq!(&png[1..4], b"PNG");
 }
+
+#[test]
+fn named_studies() {
+    for name in StudyConfig::NAMES {
+        let c = StudyConfig::named(name, 7, 9).unwrap();
+        assert_eq!((c.name.as_str(), c.draws, c.realisations), (name, 7, 9));
+        c.validate().unwrap();
+        assert_eq!(
+            matches!(c.geometry, GeometryRange::Bos { .. }),
+            name.starts_with("bos")
+        );
+        assert_eq!(
+            c.rendering == Rendering::EffectiveModel,
+            name.ends_with("-effective")
+        );
+    }
+    let n = |name| StudyConfig::named(name, 1, 3).unwrap().noise_reference;
+    assert_eq!(n("volumetric"), NoiseReference::ModelPeak);
+    assert_eq!(n("volumetric-brightest"), NoiseReference::BrightestPixel);
+    assert_eq!(n("bos-fixed-noise"), NoiseReference::ReferencePeak);
+    assert!(StudyConfig::named("ar", 1, 3).is_none());
+}
