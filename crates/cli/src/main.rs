@@ -49,10 +49,14 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
+    Bench(cmd::bench::BenchArgs),
     Check(cmd::check::CheckArgs),
+    Crlb(cmd::crlb::CrlbArgs),
     Info(cmd::info::InfoArgs),
     Init(cmd::init::InitArgs),
     Locate(cmd::locate::LocateArgs),
+    Merge(cmd::merge::MergeArgs),
+    Run(cmd::run::RunArgs),
     Synth(cmd::synth::SynthArgs),
 }
 
@@ -71,10 +75,14 @@ fn main() -> ExitCode {
         }
     };
     let result = match cli.command {
+        Command::Bench(args) => cmd::bench::run(args),
         Command::Check(args) => cmd::check::run(args),
+        Command::Crlb(args) => cmd::crlb::run(args),
         Command::Info(args) => cmd::info::run(args),
         Command::Init(args) => cmd::init::run(args),
         Command::Locate(args) => cmd::locate::run(args),
+        Command::Merge(args) => cmd::merge::run(args),
+        Command::Run(args) => cmd::run::run(args),
         Command::Synth(args) => cmd::synth::run(args),
     };
     match result {

@@ -48,7 +48,7 @@ fn assert_fails_with(o: &Output, needles: &[&str]) {
     }
 }
 
-const SUBCOMMANDS: [&str; 5] = ["check", "info", "init", "locate", "synth"];
+const SUBCOMMANDS: [&str; 7] = ["check", "info", "init", "locate", "merge", "run", "synth"];
 
 #[test]
 fn help_and_version() {

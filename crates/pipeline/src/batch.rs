@@ -26,8 +26,9 @@
 //! figures are recorded in `figures.json`) is skipped; `force` recomputes it. Every file is
 //! written under a temporary name and renamed, and a killed run's temporaries are removed when
 //! the frame is next computed, so an interrupted run leaves no half-written frame. A folder
-//! written with another configuration (detection, fit, matching, uncertainty, reference, stack
-//! or mask) is refused unless `force`; added gradient frames are simply computed.
+//! written with another configuration (detection, fit, matching, uncertainty, quantities,
+//! reference, stack or mask) is refused unless `force`; added gradient frames are simply
+//! computed.
 //!
 //! **Failures are data.** A frame that cannot be processed (unreadable file, no dots) is
 //! recorded with its reason in `failures.json`; the other frames finish. Only configuration
@@ -162,6 +163,8 @@ pub trait Progress: Sync {
     fn frame_done(&self, _event: &FrameEvent<'_>) {}
     /// A warning that does not stop anything (e.g. a figure with nothing to plot).
     fn note(&self, _message: &str) {}
+    /// A step of the run outside the frame loop begins (e.g. preparing the reference).
+    fn phase(&self, _what: &str) {}
     /// After the last frame.
     fn finish(&self) {}
 }
@@ -242,7 +245,8 @@ impl FrameRef {
 }
 
 /// Numbers the frames from 1 and gives each its output folder name (the file stem), refusing
-/// names that two frames share or that would collide with the run's own files.
+/// names that two frames share or that would collide with the run's own files. Paths are made
+/// absolute, as in the run records.
 pub(crate) fn frame_refs(paths: &[PathBuf], source: &Path) -> Result<Vec<FrameRef>, BatchError> {
     let mut seen: HashMap<String, &Path> = HashMap::new();
     let mut out = Vec::with_capacity(paths.len());
@@ -273,7 +277,7 @@ pub(crate) fn frame_refs(paths: &[PathBuf], source: &Path) -> Result<Vec<FrameRe
         out.push(FrameRef {
             number: k + 1,
             stem,
-            path: p.clone(),
+            path: record::canonical(p),
         });
     }
     Ok(out)
@@ -312,11 +316,24 @@ pub fn run_batch(
     let force = options.force || plan.output.overwrite;
     let jobs = rayon::current_num_threads();
     let mut record = RunRecord::new(plan, &out, options.shard, jobs)?;
-    if !force {
-        for path in record::record_files(&out) {
-            let old = RunRecord::read(&path)?;
-            if let Some(what) = record.differs_from(&old) {
-                return Err(BatchError::Mismatch { path, what });
+    for path in record::record_files(&out) {
+        let differs = match RunRecord::read(&path) {
+            Ok(old) => record.differs_from(&old),
+            Err(e) if !force => return Err(e),
+            Err(_) => Some("the record itself".into()),
+        };
+        match differs {
+            None => {}
+            Some(what) if !force => return Err(BatchError::Mismatch { path, what }),
+            // Forced: a record of another configuration no longer describes the folder. An
+            // unsharded run recomputes every frame, so it drops the shard records; a shard
+            // drops run.toml (merge writes it again once every shard agrees).
+            Some(_) => {
+                let is_run = path.file_name() == Some(RUN_RECORD.as_ref());
+                if is_run == options.shard.is_some() {
+                    let _ = std::fs::remove_file(&path);
+                    let _ = std::fs::remove_file(path.with_extension("json"));
+                }
             }
         }
     }
@@ -341,6 +358,16 @@ pub fn run_batch(
     let n_skip = actions.iter().filter(|a| **a == Action::Skip).count();
 
     let ctx = if n_compute > 0 {
+        progress.phase(&format!(
+            "preparing the reference side: detection and fits in {} and {} no-flow images",
+            match &plan.reference {
+                ReferenceImage::File(p) => p
+                    .file_name()
+                    .map_or_else(String::new, |n| n.to_string_lossy().into_owned()),
+                ReferenceImage::StackMean => "stack mean".into(),
+            },
+            plan.stack.len()
+        ));
         Some(ReferenceContext::prepare(plan)?)
     } else {
         None
@@ -361,14 +388,14 @@ pub fn run_batch(
         record.write(&record_path)?;
     }
 
-    let needs_figures =
-        spec.has_frame_figures() && actions.iter().any(|a| *a != Action::Skip);
+    let needs_figures = spec.has_frame_figures() && actions.iter().any(|a| *a != Action::Skip);
     let setup = if needs_figures || (options.shard.is_none() && spec.has_campaign_figures()) {
         Some(figure_setup(
             spec.clone(),
             ctx.as_ref(),
             record.image,
-            &reference_file(plan),
+            reference_file(plan),
+            reference_file(plan).or(plan.stack.first().map(PathBuf::as_path)),
             plan.mask.as_deref(),
         )?)
     } else {
@@ -525,23 +552,32 @@ fn draw_figures(
     Ok(())
 }
 
-/// The reference image file to probe for the image size when no reference context exists.
-fn reference_file(plan: &Plan) -> Option<PathBuf> {
+/// The reference image file (`None`: the stack mean).
+fn reference_file(plan: &Plan) -> Option<&Path> {
     match &plan.reference {
-        ReferenceImage::File(p) => Some(p.clone()),
-        ReferenceImage::StackMean => plan.stack.first().cloned(),
+        ReferenceImage::File(p) => Some(p),
+        ReferenceImage::StackMean => None,
     }
 }
 
 /// The figure setup: size and mask from the reference context, else from the record, else
-/// from the files.
+/// from the files. `reference` is the reference image (`None`: the stack mean) and `probe`
+/// the file to read the size from.
 fn figure_setup(
     spec: FigureSpec,
     ctx: Option<&ReferenceContext>,
     size: Option<record::ImageSize>,
-    reference: &Option<PathBuf>,
+    reference: Option<&Path>,
+    probe: Option<&Path>,
     mask: Option<&Path>,
 ) -> Result<FigureSetup, BatchError> {
+    let reference_name = match reference {
+        Some(p) => p
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_else(|| p.display().to_string()),
+        None => "the mean of the no-flow stack".to_string(),
+    };
     if let Some(ctx) = ctx {
         let (width, height) = ctx.image_size();
         return Ok(FigureSetup {
@@ -549,9 +585,10 @@ fn figure_setup(
             width,
             height,
             mask: ctx.mask().cloned(),
+            reference_name,
         });
     }
-    let (width, height) = match (size, reference) {
+    let (width, height) = match (size, probe) {
         (Some(s), _) => (s.width, s.height),
         (None, Some(p)) => {
             let info = bostrack_io::probe(p)?;
@@ -568,6 +605,7 @@ fn figure_setup(
         width,
         height,
         mask,
+        reference_name,
     })
 }
 
@@ -608,16 +646,13 @@ pub fn merge_campaign(out_dir: &Path, progress: &dyn Progress) -> Result<MergeRe
         .collect();
     let setup = if !missing.is_empty() || spec.has_campaign_figures() {
         let size = records.iter().find_map(|(_, r)| r.image);
-        let reference = first
-            .inputs
-            .reference
-            .clone()
-            .or_else(|| first.inputs.stack.first().cloned());
+        let reference = first.inputs.reference.as_deref();
         Some(figure_setup(
             spec.clone(),
             None,
             size,
-            &reference,
+            reference,
+            reference.or(first.inputs.stack.first().map(PathBuf::as_path)),
             first.inputs.mask.as_deref(),
         )?)
     } else {
@@ -648,21 +683,20 @@ pub fn merge_campaign(out_dir: &Path, progress: &dyn Progress) -> Result<MergeRe
 
     // Reasons recorded by earlier runs and shards, the latest shard outcome last.
     let mut reasons: HashMap<String, String> = HashMap::new();
-    if let Ok(bytes) = std::fs::read(out_dir.join(campaign::FAILURES)) {
-        if let Ok(f) = serde_json::from_slice::<campaign::FailuresFile>(&bytes) {
-            for x in f.failures {
-                reasons.insert(x.stem, x.reason);
-            }
+    if let Ok(bytes) = std::fs::read(out_dir.join(campaign::FAILURES))
+        && let Ok(f) = serde_json::from_slice::<campaign::FailuresFile>(&bytes)
+    {
+        for x in f.failures {
+            reasons.insert(x.stem, x.reason);
         }
     }
-    if let Ok(files) = crate::files::list_matching(&out_dir.join(SHARDS_DIR), "shard-*-of-*.json")
-    {
+    if let Ok(files) = crate::files::list_matching(&out_dir.join(SHARDS_DIR), "shard-*-of-*.json") {
         for p in files {
-            if let Ok(bytes) = std::fs::read(&p) {
-                if let Ok(o) = serde_json::from_slice::<ShardOutcome>(&bytes) {
-                    for x in o.failures {
-                        reasons.insert(x.stem, x.reason);
-                    }
+            if let Ok(bytes) = std::fs::read(&p)
+                && let Ok(o) = serde_json::from_slice::<ShardOutcome>(&bytes)
+            {
+                for x in o.failures {
+                    reasons.insert(x.stem, x.reason);
                 }
             }
         }
@@ -752,16 +786,11 @@ mod tests {
     #[test]
     fn frames_are_numbered_and_stems_checked() {
         let src = Path::new("p.toml");
-        let f = frame_refs(
-            &[PathBuf::from("g/a1.tif"), PathBuf::from("g/a2.tif")],
-            src,
-        )
-        .unwrap();
+        let f = frame_refs(&[PathBuf::from("g/a1.tif"), PathBuf::from("g/a2.tif")], src).unwrap();
         assert_eq!((f[0].number, f[1].number), (1, 2));
         assert_eq!(f[1].stem, "a2");
         assert_eq!(f[1].title(9), "a2.tif (frame 2 of 9)");
-        let e = frame_refs(&[PathBuf::from("g/a.tif"), PathBuf::from("h/a.png")], src)
-            .unwrap_err();
+        let e = frame_refs(&[PathBuf::from("g/a.tif"), PathBuf::from("h/a.png")], src).unwrap_err();
         assert!(e.to_string().contains("share the stem `a`"), "{e}");
         let e = frame_refs(&[PathBuf::from("g/shards.tif")], src).unwrap_err();
         assert!(e.to_string().contains("reserved"), "{e}");

@@ -98,6 +98,11 @@ pub struct MatchConfig {
     pub median_epsilon: f64,
     /// Median-test threshold (dimensionless).
     pub median_threshold: f64,
+    /// Displacements longer than this (px) are outliers; `None`: no threshold.
+    pub max_displacement: Option<f64>,
+    /// A frame in which fewer than this fraction of the fitted reference dots are matched is
+    /// an error (a wrong or empty image), not a result.
+    pub min_matched_fraction: f64,
 }
 
 impl Default for MatchConfig {
@@ -106,6 +111,8 @@ impl Default for MatchConfig {
             search_radius: 0.4,
             median_epsilon: 0.1,
             median_threshold: 2.0,
+            max_displacement: None,
+            min_matched_fraction: 0.1,
         }
     }
 }
@@ -212,6 +219,31 @@ impl FigureFormat {
     }
 }
 
+/// What the pair pipeline computes per dot; each level includes the ones before it, and
+/// nothing beyond the level asked for is computed (no stack fits below `uncertainty`, no
+/// amplification ratio below `amplification`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Quantities {
+    /// Displacement (and the per-dot bound of both fits).
+    Displacement,
+    /// Displacement and amplification ratio.
+    Amplification,
+    /// Displacement, amplification ratio, and the stack's u_ref, u_grad = AR u_ref, u_d.
+    Uncertainty,
+}
+
+impl Quantities {
+    /// The name used in `pipeline.toml`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Quantities::Displacement => "displacement",
+            Quantities::Amplification => "amplification",
+            Quantities::Uncertainty => "uncertainty",
+        }
+    }
+}
+
 /// `[output]`: what a run writes, and where.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -222,11 +254,14 @@ pub struct OutputConfig {
     pub csv: bool,
     /// Summary file.
     pub summary: bool,
+    /// What is computed per dot (each level includes the ones before it).
+    pub quantities: Quantities,
     /// Figures to draw.
     pub figures: Vec<Figure>,
     /// File formats of every figure.
     pub figure_formats: Vec<FigureFormat>,
-    /// Replace the outputs of an earlier run.
+    /// Recompute every frame and accept an output folder of another configuration (as
+    /// `bostrack run --force`).
     pub overwrite: bool,
 }
 
@@ -236,7 +271,8 @@ impl Default for OutputConfig {
             dir: PathBuf::from("out"),
             csv: true,
             summary: true,
-            figures: vec![Figure::Displacement, Figure::Uncertainty],
+            quantities: Quantities::Uncertainty,
+            figures: Figure::ALL.to_vec(),
             figure_formats: vec![FigureFormat::Png],
             overwrite: false,
         }

@@ -166,8 +166,4 @@ pub enum PipelineError {
         path: PathBuf,
         source: std::io::Error,
     },
-
-    /// Placeholder while the pipeline is being built (removed when done).
-    #[error("the pair pipeline is not finished yet")]
-    Unfinished,
 }

@@ -40,6 +40,9 @@ pub(crate) struct FigureSetup {
     pub width: usize,
     pub height: usize,
     pub mask: Option<Mask>,
+    /// Names the reference image in the detections figure (its file name, or "the mean of the
+    /// no-flow stack").
+    pub reference_name: String,
 }
 
 /// One per-frame figure kind and its file stem.
@@ -180,7 +183,7 @@ impl FigureSetup {
             }
             .map_err(FigureOutcome::Skip)?;
             let name = format!("{stem}.{}", fmt.extension());
-            write_atomic(&dir.join(&name), &bytes).map_err(FigureOutcome::Fail)?;
+            write_atomic(&dir.join(&name), &bytes).map_err(|e| FigureOutcome::Fail(Box::new(e)))?;
             written.push(name);
         }
         Ok(())
@@ -190,7 +193,7 @@ impl FigureSetup {
 /// Why a figure was not written: nothing to draw (a note), or the file could not be written.
 enum FigureOutcome {
     Skip(bf::FigureError),
-    Fail(BatchError),
+    Fail(Box<BatchError>),
 }
 
 /// Draws the requested per-frame figures of `frame_dir` from its `dots.csv`, then writes
@@ -219,13 +222,17 @@ pub(crate) fn draw_frame_figures(
         match result {
             Ok(()) => {}
             Err(FigureOutcome::Skip(e)) => {
-                notes.push(format!("{}: {}: {e}", frame_dir.display(), kind.file_stem()));
+                notes.push(format!(
+                    "{}: {}: {e}",
+                    frame_dir.display(),
+                    kind.file_stem()
+                ));
                 record.skipped.push(Skipped {
                     figure: kind.file_stem().to_string(),
                     reason: e.to_string(),
                 });
             }
-            Err(FigureOutcome::Fail(e)) => return Err(e),
+            Err(FigureOutcome::Fail(e)) => return Err(*e),
         }
     }
     let json = serde_json::to_vec_pretty(&record).map_err(|e| BatchError::Corrupt {
@@ -320,32 +327,31 @@ pub(crate) fn draw_campaign_figures(
     out_dir: &Path,
     title: &str,
     points: &[CampaignPoint],
-    detections_from: Option<(&Path, &str)>,
+    detections_from: Option<&Path>,
     setup: &FigureSetup,
 ) -> Result<Vec<String>, BatchError> {
     let mut notes = Vec::new();
     let mut written = Vec::new();
-    let mut handle = |name: &str, fig: Result<bf::Figure, bf::FigureError>| {
-        match fig
-            .map_err(FigureOutcome::Skip)
-            .and_then(|f| setup.write(out_dir, name, &f, &mut written))
-        {
-            Ok(()) => Ok(()),
-            Err(FigureOutcome::Skip(e)) => {
-                notes.push(format!("{name}: {e}"));
-                Ok(())
-            }
-            Err(FigureOutcome::Fail(e)) => Err(e),
+    let mut handle = |name: &str, fig: Result<bf::Figure, bf::FigureError>| match fig
+        .map_err(FigureOutcome::Skip)
+        .and_then(|f| setup.write(out_dir, name, &f, &mut written))
+    {
+        Ok(()) => Ok(()),
+        Err(FigureOutcome::Skip(e)) => {
+            notes.push(format!("{name}: {e}"));
+            Ok(())
         }
+        Err(FigureOutcome::Fail(e)) => Err(*e),
     };
     if setup.spec.figures.contains(&Figure::Campaign) {
         handle("campaign", campaign_figure(title, points))?;
     }
     if setup.spec.figures.contains(&Figure::Detections) {
         let fig = match detections_from {
-            Some((dir, frame_title)) => {
+            Some(dir) => {
                 let d = read_dots(&dir.join("dots.csv"))?;
-                detections_figure(&d, frame_title, setup)
+                let title = format!("reference dots in {}", setup.reference_name);
+                detections_figure(&d, &title, setup)
             }
             None => Err(no_data("detections", "no complete frame")),
         };
@@ -356,17 +362,23 @@ pub(crate) fn draw_campaign_figures(
 
 /// Median |d| (and median |u_d| when known) against the frame number, one panel each.
 fn campaign_figure(title: &str, points: &[CampaignPoint]) -> Result<bf::Figure, bf::FigureError> {
-    let panel = |title: &str, y_label: &str, label: &str, f: fn(&CampaignPoint) -> f64| bf::XyPlot {
-        title: title.to_string(),
-        x_label: "frame number (natural order of the file names)".to_string(),
-        y_label: y_label.to_string(),
-        series: vec![bf::XySeries {
-            label: label.to_string(),
-            points: points.iter().map(|p| (p.frame as f64, f(p))).collect(),
-            style: bf::SeriesStyle::LinePoints,
-        }],
-        ..bf::XyPlot::default()
-    };
+    let panel =
+        |title: &str, y_label: &str, label: &str, f: fn(&CampaignPoint) -> f64| bf::XyPlot {
+            title: title.to_string(),
+            x_label: "frame number (natural order of the file names)".to_string(),
+            y_label: y_label.to_string(),
+            series: vec![bf::XySeries {
+                label: label.to_string(),
+                points: points.iter().map(|p| (p.frame as f64, f(p))).collect(),
+                // Markers only help while they can be told apart.
+                style: if points.len() > 60 {
+                    bf::SeriesStyle::Line
+                } else {
+                    bf::SeriesStyle::LinePoints
+                },
+            }],
+            ..bf::XyPlot::default()
+        };
     let mut panels = vec![panel(
         "Median displacement magnitude",
         "median |d| (px)",
@@ -404,7 +416,7 @@ fn detections_figure(
         })
         .collect();
     let q = bf::Quantity {
-        name: "Reference dots: Cramér-Rao bound |CRLB_ref|",
+        name: "Cramér-Rao bound |CRLB_ref|",
         unit: "px",
     };
     bf::scalar_map(

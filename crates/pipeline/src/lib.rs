@@ -9,6 +9,17 @@
 //! 2. [`Plan`]: paths resolved against the configuration file's folder, files checked to exist,
 //!    frame patterns expanded and sorted naturally (`frame2` before `frame10`), values checked.
 //!
+//! A plan is run frame by frame by [`process_frame`] against a [`ReferenceContext`], and over a
+//! whole campaign by [`run_batch`]: parallel, resumable, per-frame outputs written atomically,
+//! failures recorded, figures, a campaign table, shards ([`Shard`]) and their
+//! [`merge_campaign`].
+//!
+//! The per-frame pair pipeline: [`ReferenceContext`] (once per campaign: reference image, noise
+//! model, detection, fits, the no-flow stack's per-dot u_ref), [`process_frame`] (one gradient
+//! frame: tracking, fits, matching and validation, displacement, amplification ratio, u_d) and
+//! [`write_frame`] (`dots.csv` + `summary.json`, atomically). See [`ReferenceContext`] for an
+//! example.
+//!
 //! ```
 //! use bostrack_pipeline::{parse_config, template, PipelineConfig, ConfigError};
 //! use std::path::Path;
@@ -41,17 +52,17 @@ pub use batch::{
 };
 pub use config::{
     ArVariant, DetectSection, Figure, FigureFormat, FitSection, InputConfig, MatchConfig,
-    OutputConfig,
-    PipelineConfig, ReferenceFrom, ReferencePosition, RunConfig, UncertaintyConfig,
+    OutputConfig, PipelineConfig, Quantities, ReferenceFrom, ReferencePosition, RunConfig,
+    UncertaintyConfig,
 };
 pub use error::{ConfigError, PipelineError};
 pub use files::{glob_match, list_matching, natural_cmp};
 pub use jobs::{available_jobs, resolve_jobs};
-pub use pair::{
-    FrameResult, FrameSummary, ReferenceContext, StageTimes, frame_is_complete, process_frame,
-    write_frame,
-};
 pub use load::{load_config, load_toml, parse_config, parse_toml};
+pub use pair::{
+    FrameCounts, FrameMedians, FrameResult, FrameSummary, NoiseSummary, ReferenceContext,
+    StackSummary, StageTimes, frame_is_complete, process_frame, process_image, write_frame,
+};
 pub use plan::{OutputPlan, Plan, ReferenceImage};
 pub use suggest::{did_you_mean, edit_distance};
 pub use template::template;

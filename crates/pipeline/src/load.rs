@@ -177,7 +177,13 @@ mod tests {
                 assert_eq!(suggestion.as_deref(), Some("median_threshold"));
                 assert_eq!(
                     **valid,
-                    ["search_radius", "median_epsilon", "median_threshold"]
+                    [
+                        "search_radius",
+                        "median_epsilon",
+                        "median_threshold",
+                        "max_displacement",
+                        "min_matched_fraction"
+                    ]
                 );
             }
             other => panic!("wrong error: {other:?}"),

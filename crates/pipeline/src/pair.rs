@@ -1,63 +1,200 @@
-//! The per-frame pair pipeline: reference context (once per campaign) and one gradient frame.
+//! The per-frame pair pipeline: the reference side once per campaign ([`ReferenceContext`]),
+//! then each gradient frame ([`process_frame`]) and its outputs ([`write_frame`]).
 //!
-//! CONTRACT with helper "batch" (see /work/contract-run.md): the types and signatures below are
+//! CONTRACT with helper "batch" (/work/contract-run.md): the types and signatures of
+//! `ReferenceContext::{prepare, timings, summary, image_size, mask}`, `FrameResult`,
+//! `FrameSummary`, `StageTimes`, `process_frame`, `write_frame` and `frame_is_complete` are
 //! shared; they may grow fields but do not change shape without a note here.
+//! Notes: `PipelineError::SizeMismatch` has a `what` field ("image size", "bit depth", ...).
+//! Note from batch: `FrameMedians::abs_u_d` (median |u_d| over the valid dots, computed next to
+//! `abs_d` in pair/frame.rs) was added by batch; the campaign figure plots `medians.abs_d` and
+//! `medians.abs_u_d` from summary.json.
+//!
+//! # The chain
+//! Reference side ([`ReferenceContext::prepare`]):
+//! 1. **decode** the reference image (or the pixel mean of the no-flow stack) and the mask;
+//! 2. **noise** model (variance against mean, docs/CONVENTIONS.md): from the no-flow stack when
+//!    one is configured (`bostrack_fit::noise_from_stack`), else from the reference image
+//!    (`bostrack_fit::estimate_noise`). It weights every fit and sets every per-dot bound;
+//! 3. **detect** the lattice and one seed per site (`bostrack_detect::detect`);
+//! 4. **fit** every seed (`bostrack_fit::fit_dots`; rayon over dots);
+//! 5. only with `[output] quantities = "uncertainty"`: the **stack** — every no-flow image is
+//!    tracked from the reference seeds (`bostrack_detect::track`, grid indices kept), fitted,
+//!    matched to the reference fits (`bostrack_match::match_dots`: by grid index, kd-tree as
+//!    fall-back and cross-check; pairs flagged `GRID_MISMATCH` are left out) and the per-dot
+//!    scatter is taken after removing each image's common-mode shift
+//!    (`bostrack_uncertainty::reference_stack`): `u_ref` per dot (sample std, divisor K - 1),
+//!    with relative standard error `1/sqrt(2(K - 1))` (24 % at K = 10).
+//!
+//! Per frame ([`process_frame`]):
+//! 1. **decode**; the image must have the reference's size;
+//! 2. **detect**: track the reference seeds into the frame (grid indices kept);
+//! 3. **fit** every tracked seed with the campaign's noise model;
+//! 4. **match** the fits to the reference fits (grid index, kd-tree fall-back and cross-check,
+//!    search radius `[match] search_radius` × spacing, iterative local-median predictor seeded
+//!    with the median tracked displacement) and **validate** the displacements (optional
+//!    threshold `[match] max_displacement`, then the normalised median test of Westerweel &
+//!    Scarano 2005 over the 8 nearest vectors; outliers are flagged `OUTLIER`, never replaced);
+//! 5. **pair**: per reference dot `d = x_grad - x_ref`, the amplification ratio (NOTES.md §2;
+//!    the published variant only with `ar_variant = "published"`), `u_grad = AR · u_ref`,
+//!    `u_d = sqrt(u_refpos² + u_grad²)` (`bostrack_displacement::pair_dot`).
+//!
+//! **AR shapes.** With the default least-squares fit of the pixel-integrated model the fitted
+//! sigmas are those of the dot *before* the pixel box; the light the pixels record is that dot
+//! blurred by the box, so AR is evaluated on `bostrack_displacement::pixel_blurred` shapes
+//! ([`ArShapes::PixelBlurred`](bostrack_displacement::ArShapes)): the plain formula on
+//! pixel-integrated fits is off by 3 % at σ = 1.5 px and 7.5 % at σ = 1 px. Point-sampled fits
+//! and the moment estimators already describe the recorded light: AR on the fitted shapes.
+//!
+//! **Determinism.** Every parallel loop collects in input order, so `dots.csv` is
+//! byte-identical whatever the number of threads; only the wall times in `summary.json` differ.
 
-use crate::error::PipelineError;
-use crate::plan::Plan;
+mod frame;
+mod output;
+mod reference;
+mod stats;
+
+pub use frame::{process_frame, process_image};
+pub use output::{frame_is_complete, write_frame};
+pub use reference::ReferenceContext;
+
 use serde::Serialize;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
-/// Stage wall times in seconds, in the order the stages ran.
-#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+/// Stage wall times in seconds, in the order the stages ran. Serialised as a JSON object
+/// `{"decode": 0.012, ...}` in that order.
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct StageTimes {
     /// `(stage name, seconds)`.
     pub stages: Vec<(String, f64)>,
 }
 
-/// Everything computed once per campaign: reference image + mask, its detection and fits, the
-/// noise model (from the stack when given, else from the reference image), the no-flow stack's
-/// per-dot scatter (u_ref, K) when a stack is configured and the outputs need it.
-#[derive(Debug)]
-pub struct ReferenceContext {
-    size: (usize, usize),
-    mask: Option<bostrack_core::Mask>,
-    times: StageTimes,
-}
-
-impl ReferenceContext {
-    /// Prepares the reference side of a campaign. Runs inside the caller's rayon pool.
-    pub fn prepare(plan: &Plan) -> Result<ReferenceContext, PipelineError> {
-        let _ = plan;
-        Err(PipelineError::Unfinished)
+impl StageTimes {
+    /// Seconds of a stage (summed if it ran more than once), `None` if it did not run.
+    pub fn get(&self, stage: &str) -> Option<f64> {
+        let mut found = None;
+        for (n, s) in &self.stages {
+            if n == stage {
+                *found.get_or_insert(0.0) += s;
+            }
+        }
+        found
     }
 
-    /// Reference-side stage wall times (s).
-    pub fn timings(&self) -> &StageTimes {
-        &self.times
+    /// Sum over every stage.
+    pub fn total(&self) -> f64 {
+        self.stages.iter().map(|(_, s)| s).sum()
     }
 
-    /// Reference-side facts for run.toml / the summary (dots found, noise, stack K...).
-    pub fn summary(&self) -> serde_json::Value {
-        serde_json::Value::Null
-    }
-
-    /// `(width, height)` of the reference image.
-    pub fn image_size(&self) -> (usize, usize) {
-        self.size
-    }
-
-    /// The region-of-interest mask, if one is configured.
-    pub fn mask(&self) -> Option<&bostrack_core::Mask> {
-        self.mask.as_ref()
+    pub(crate) fn push(&mut self, stage: &str, seconds: f64) {
+        self.stages.push((stage.to_string(), seconds));
     }
 }
 
-/// Per-frame summary (summary.json).
-#[derive(Clone, Debug, Default, Serialize)]
+impl Serialize for StageTimes {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        use serde::ser::SerializeMap;
+        let mut m = s.serialize_map(Some(self.stages.len()))?;
+        for (n, t) in &self.stages {
+            m.serialize_entry(n, t)?;
+        }
+        m.end()
+    }
+}
+
+/// Dot counts of one frame.
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct FrameCounts {
+    /// Reference sites (rows of `dots.csv`), MISSING ones included.
+    pub reference_sites: usize,
+    /// Reference dots with a usable fit.
+    pub reference_fitted: usize,
+    /// Gradient dots with a usable fit ("found").
+    pub found: usize,
+    /// Pairs with a usable fit on both sides.
+    pub matched: usize,
+    /// Pairs found by grid index / by the kd-tree fall-back.
+    pub matched_by_index: usize,
+    pub matched_by_nearest: usize,
+    /// Pairs whose grid index and kd-tree match disagree (`GRID_MISMATCH`).
+    pub grid_mismatches: usize,
+    /// Reference records without a partner, and gradient records without one.
+    pub unmatched_reference: usize,
+    pub unmatched_gradient: usize,
+    /// Displacements rejected by the validation (`OUTLIER`).
+    pub outliers: usize,
+    /// Rows with `valid = true`.
+    pub valid: usize,
+}
+
+/// Medians over the valid dots (`None` where no valid dot has the quantity). Per-axis values
+/// are `[x, y]`.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct FrameMedians {
+    /// Median |d| (px).
+    pub abs_d: Option<f64>,
+    /// Median |u_d| = √(u_dx² + u_dy²) (px; plotted by the campaign figure).
+    pub abs_u_d: Option<f64>,
+    pub d: [Option<f64>; 2],
+    pub ar: [Option<f64>; 2],
+    /// 99th percentile of AR.
+    pub ar_p99: [Option<f64>; 2],
+    pub u_ref: [Option<f64>; 2],
+    pub u_grad: [Option<f64>; 2],
+    pub u_d: [Option<f64>; 2],
+    /// Per-dot Cramér-Rao bound of the reference and the gradient fits (px).
+    pub crlb_ref: [Option<f64>; 2],
+    pub crlb_grad: [Option<f64>; 2],
+}
+
+/// The noise model every fit was weighted with: `variance = read_variance + gain · max(mean -
+/// offset, 0)` counts².
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct NoiseSummary {
+    pub read_variance: f64,
+    pub gain: f64,
+    pub offset: f64,
+    /// `"stack"` (`noise_from_stack`) or `"reference image"` (`estimate_noise`).
+    pub source: String,
+}
+
+/// The no-flow stack statistics behind the `u_ref` columns.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct StackSummary {
+    /// K: images in the stack.
+    pub images: usize,
+    /// Relative standard error of a per-dot u_ref from K images, `1/sqrt(2(K - 1))`.
+    pub relative_standard_error: f64,
+    /// Reference dots with a u_ref.
+    pub dots_with_u_ref: usize,
+    /// Median u_ref over those dots (px).
+    pub median_u_ref: [Option<f64>; 2],
+    /// Whether each image's common-mode shift was removed, and the RMS of those shifts (px).
+    pub common_mode_removed: bool,
+    pub shift_rms: [f64; 2],
+}
+
+/// Per-frame summary (`summary.json`).
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
 pub struct FrameSummary {
+    /// bostrack version.
     pub version: String,
+    /// The gradient image.
     pub frame: PathBuf,
+    /// `[output] quantities` ("displacement", "amplification", "uncertainty").
+    pub quantities: String,
+    /// Shapes the amplification ratio was evaluated on: "pixel-blurred" or "fitted".
+    pub ar_shapes: String,
+    /// Amplification-ratio variant: "notes" or "published".
+    pub ar_variant: String,
+    pub counts: FrameCounts,
+    pub medians: FrameMedians,
+    pub noise: Option<NoiseSummary>,
+    pub stack: Option<StackSummary>,
+    /// Why the stack columns (u_ref, u_grad, u_d) are empty, when they are.
+    pub stack_note: Option<String>,
+    /// Frame stage wall times (s): decode, detect, fit, match, pair.
+    pub times: StageTimes,
 }
 
 /// One processed gradient frame.
@@ -68,25 +205,4 @@ pub struct FrameResult {
     /// One per reference dot, reference order.
     pub dots: Vec<bostrack_displacement::PairDot>,
     pub summary: FrameSummary,
-}
-
-/// Processes one gradient frame against the reference context.
-pub fn process_frame(
-    ctx: &ReferenceContext,
-    plan: &Plan,
-    frame: &Path,
-) -> Result<FrameResult, PipelineError> {
-    let _ = (ctx, plan, frame);
-    Err(PipelineError::Unfinished)
-}
-
-/// Writes `DIR/<stem>/dots.csv` and `DIR/<stem>/summary.json` atomically.
-pub fn write_frame(out_dir: &Path, result: &FrameResult) -> Result<(), PipelineError> {
-    let _ = (out_dir, result);
-    Err(PipelineError::Unfinished)
-}
-
-/// Whether `DIR/<stem>/summary.json` exists (written last, so it marks a complete frame).
-pub fn frame_is_complete(out_dir: &Path, stem: &str) -> bool {
-    out_dir.join(stem).join("summary.json").is_file()
 }

@@ -200,6 +200,20 @@ impl Validator<'_> {
                 format!("{} is not a finite value > 0", m.median_threshold),
             ));
         }
+        if !(0.0..=1.0).contains(&m.min_matched_fraction) {
+            return Err(self.invalid(
+                "match.min_matched_fraction",
+                format!("{} is not in [0, 1]", m.min_matched_fraction),
+            ));
+        }
+        if let Some(t) = m.max_displacement
+            && !(t.is_finite() && t > 0.0)
+        {
+            return Err(self.invalid(
+                "match.max_displacement",
+                format!("{t} is not a finite value > 0"),
+            ));
+        }
         for (key, glob) in [
             ("input.stack_glob", &cfg.input.stack_glob),
             ("input.gradient_glob", &cfg.input.gradient_glob),
@@ -406,8 +420,21 @@ mod tests {
                 "[output]\nfigures = [\"uncertainty\", \"uncertainty\"]\n",
                 "output.figures",
             ),
+            (
+                "[output]\nfigure_formats = [\"svg\", \"svg\"]\n",
+                "output.figure_formats",
+            ),
+            ("[output]\nfigure_formats = []\n", "output.figure_formats"),
             ("[detect]\nmin_snr = -1.0\n", "detect.min_snr"),
             ("[fit]\nmax_iterations = 0\n", "fit"),
+            (
+                "[match]\nmax_displacement = -1.0\n",
+                "match.max_displacement",
+            ),
+            (
+                "[match]\nmin_matched_fraction = 1.5\n",
+                "match.min_matched_fraction",
+            ),
         ] {
             let e = plan(root.path(), &format!("{BASE}{extra}")).unwrap_err();
             assert!(

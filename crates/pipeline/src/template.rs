@@ -205,6 +205,17 @@ pub(crate) const SECTIONS: &[SectionDoc] = &[
                 "Median-test epsilon (px): the displacement noise floor.",
             ),
             key("median_threshold", "Median-test threshold (dimensionless)."),
+            KeyDoc {
+                key: "max_displacement",
+                doc: "Displacements longer than this (px) are outliers, before the median test. Left\n\
+                      out: no threshold.",
+                example: Some("3.0"),
+            },
+            key(
+                "min_matched_fraction",
+                "A gradient image in which fewer than this fraction of the fitted reference dots\n\
+                 are matched is an error (a wrong or empty image), not a result.",
+            ),
         ],
     },
     SectionDoc {
@@ -240,6 +251,13 @@ pub(crate) const SECTIONS: &[SectionDoc] = &[
                 "Write a summary (counts, medians, flags) of the run.",
             ),
             key(
+                "quantities",
+                "What is computed per dot, each level including the ones before it: \"displacement\",\n\
+                 \"amplification\" (+ amplification ratio AR), \"uncertainty\" (+ u_ref from the\n\
+                 no-flow stack, u_grad = AR * u_ref, u_d). Nothing more is computed than asked for:\n\
+                 below \"uncertainty\" the stack is not fitted (it still gives the noise model).",
+            ),
+            key(
                 "figures",
                 "Figures to draw. Per frame, into DIR/<frame>/: \"displacement\" (arrows over |d|),\n\
                  \"uncertainty\" (map of |u_d|), \"amplification\" (map of |AR|), \"histograms\"\n\
@@ -252,7 +270,9 @@ pub(crate) const SECTIONS: &[SectionDoc] = &[
             ),
             key(
                 "overwrite",
-                "Replace the outputs of an earlier run in `dir` (otherwise the run refuses).",
+                "Recompute every frame, even those whose outputs in `dir` are complete, and accept\n\
+                 a `dir` written with another configuration (as `bostrack run --force`).\n\
+                 Otherwise a rerun skips complete frames and refuses such a `dir`.",
             ),
         ],
     },

@@ -10,13 +10,14 @@
 //! `"timings"`, and names the timing columns in `"timing_columns"`, so two campaigns can be
 //! compared without them.
 
-use super::fsx::write_atomic;
+use super::fsx::AtomicFile;
 use super::{BatchError, FrameFailure, FrameRef, Progress};
 use crate::figures::{CampaignPoint, FigureSetup, FigureSpec, draw_campaign_figures};
 use crate::pair::frame_is_complete;
 use serde::{Deserialize, Serialize};
 use serde_json::{Map, Value};
 use std::collections::HashMap;
+use std::io::Write as _;
 use std::path::Path;
 
 pub(crate) const CAMPAIGN_CSV: &str = "campaign.csv";
@@ -75,6 +76,17 @@ fn flatten(prefix: &str, v: &Value, out: &mut Flat) {
                 flatten(&join(p[0].as_str().expect("checked")), &p[1], out);
             }
         }
+        // Per-axis pairs `[x, y]` (the summaries' convention) and other lists of scalars.
+        Value::Array(a) if a.iter().all(|e| !e.is_array() && !e.is_object()) => {
+            for (k, e) in a.iter().enumerate() {
+                let name = match (a.len(), k) {
+                    (2, 0) => "x".to_string(),
+                    (2, 1) => "y".to_string(),
+                    _ => k.to_string(),
+                };
+                out.push((join(&name), e.clone()));
+            }
+        }
         Value::Array(_) => out.push((prefix.to_string(), Value::String(v.to_string()))),
         _ => out.push((prefix.to_string(), v.clone())),
     }
@@ -87,9 +99,10 @@ const DROPPED: [&str; 2] = ["frame", "version"];
 /// Reads and flattens `DIR/<stem>/summary.json`.
 fn read_summary(out: &Path, stem: &str) -> Result<Flat, String> {
     let path = out.join(stem).join("summary.json");
-    let bytes = std::fs::read(&path).map_err(|e| format!("{}: cannot read: {e}", path.display()))?;
-    let v: Value = serde_json::from_slice(&bytes)
-        .map_err(|e| format!("{}: not JSON: {e}", path.display()))?;
+    let bytes =
+        std::fs::read(&path).map_err(|e| format!("{}: cannot read: {e}", path.display()))?;
+    let v: Value =
+        serde_json::from_slice(&bytes).map_err(|e| format!("{}: not JSON: {e}", path.display()))?;
     let mut flat = Flat::new();
     flatten("", &v, &mut flat);
     flat.retain(|(k, _)| !DROPPED.contains(&k.as_str()));
@@ -105,13 +118,43 @@ fn number(flat: &Flat, names: &[&str]) -> f64 {
         .unwrap_or(f64::NAN)
 }
 
-/// Column names of the median |d| and median |u_d| in `summary.json` (the first present).
-const MEDIAN_D: [&str; 3] = ["median_d", "median.d", "medians.d"];
-const MEDIAN_U: [&str; 3] = ["median_u_d", "median.u_d", "medians.u_d"];
+/// Column of the median |d| in `summary.json`.
+const MEDIAN_D: [&str; 1] = ["medians.abs_d"];
+/// Column of the median |u_d| in `summary.json`.
+const MEDIAN_U: [&str; 1] = ["medians.abs_u_d"];
+
+/// A frame's state in the campaign: its flattened summary, or why it has none.
+fn frame_values(
+    out: &Path,
+    f: &FrameRef,
+    spec: &FigureSpec,
+    reasons: &HashMap<String, String>,
+) -> Result<Flat, String> {
+    if frame_is_complete(out, &f.stem) && spec.frame_complete(&out.join(&f.stem)) {
+        read_summary(out, &f.stem)
+    } else {
+        Err(reasons.get(&f.stem).cloned().unwrap_or_else(|| {
+            format!(
+                "not processed: no complete output in {} (a shard not run or not finished?)",
+                out.join(&f.stem).display()
+            )
+        }))
+    }
+}
+
+fn file_name(p: &Path) -> String {
+    p.file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default()
+}
 
 /// Builds and writes the campaign files of `frames` in `out`. `reasons` gives the failure
 /// reason of frames known to have failed; frames without complete outputs and without a
 /// reason are "not processed".
+///
+/// Streams: a first pass over the summaries finds the columns, the second writes one row at a
+/// time, so memory does not grow with the number of frames (beyond three numbers per frame for
+/// the campaign figure).
 pub(crate) fn build(
     out: &Path,
     frames: &[FrameRef],
@@ -121,171 +164,160 @@ pub(crate) fn build(
     title: &str,
     progress: &dyn Progress,
 ) -> Result<Built, BatchError> {
-    struct Row {
-        frame: usize,
-        stem: String,
-        file: String,
-        reason: Option<String>,
-        values: Flat,
-    }
-    let mut rows = Vec::with_capacity(frames.len());
+    // Temporaries of campaign files a killed run was writing.
+    super::fsx::remove_stale_files(out);
+
+    // Pass 1: columns (the union of the summaries' keys in first-seen order, timings last),
+    // failures and the campaign figure's points.
+    let mut columns: Vec<String> = Vec::new();
     let mut failures = Vec::new();
+    let mut points = Vec::with_capacity(frames.len());
+    let mut first_complete: Option<&FrameRef> = None;
     for f in frames {
-        let complete = frame_is_complete(out, &f.stem) && spec.frame_complete(&out.join(&f.stem));
-        let read = if complete {
-            read_summary(out, &f.stem)
-        } else {
-            Err(reasons.get(&f.stem).cloned().unwrap_or_else(|| {
-                format!(
-                    "not processed: no complete output in {} (a shard not run or not finished?)",
-                    out.join(&f.stem).display()
-                )
-            }))
-        };
-        let (values, reason) = match read {
-            Ok(v) => (v, None),
+        let (median_d, median_u) = match frame_values(out, f, spec, reasons) {
+            Ok(values) => {
+                first_complete.get_or_insert(f);
+                for (k, _) in &values {
+                    if !columns.contains(k) {
+                        columns.push(k.clone());
+                    }
+                }
+                (number(&values, &MEDIAN_D), number(&values, &MEDIAN_U))
+            }
             Err(reason) => {
                 failures.push(FrameFailure {
                     frame: f.number,
                     stem: f.stem.clone(),
                     file: f.path.clone(),
-                    reason: reason.clone(),
+                    reason,
                 });
-                (Flat::new(), Some(reason))
+                (f64::NAN, f64::NAN)
             }
         };
-        rows.push(Row {
+        points.push(CampaignPoint {
             frame: f.number,
-            stem: f.stem.clone(),
-            file: f
-                .path
-                .file_name()
-                .map(|n| n.to_string_lossy().into_owned())
-                .unwrap_or_default(),
-            reason,
-            values,
+            median_d,
+            median_u,
         });
     }
-
-    // Columns: the union of the summaries' keys in first-seen order, timings last.
-    let mut columns: Vec<String> = Vec::new();
-    for r in &rows {
-        for (k, _) in &r.values {
-            if !columns.contains(k) {
-                columns.push(k.clone());
-            }
-        }
-    }
-    let (mut data_cols, timing_cols): (Vec<String>, Vec<String>) =
+    let (mut all_cols, timing_cols): (Vec<String>, Vec<String>) =
         columns.into_iter().partition(|c| !is_timing(c));
-    data_cols.extend(timing_cols.iter().cloned());
-    let all_cols = data_cols;
+    all_cols.extend(timing_cols.iter().cloned());
 
-    // campaign.csv
+    // Pass 2: one row per frame into campaign.csv and campaign.json.
+    let csv_path = out.join(CAMPAIGN_CSV);
+    let json_path = out.join(CAMPAIGN_JSON);
+    let mut csv_file = AtomicFile::create(&csv_path)?;
+    let mut json_file = AtomicFile::create(&json_path)?;
     let csv_err = |e: csv::Error| BatchError::Corrupt {
-        path: out.join(CAMPAIGN_CSV),
+        path: csv_path.clone(),
         message: e.to_string(),
     };
-    let mut w = csv::Writer::from_writer(Vec::new());
-    let mut header = vec!["frame", "stem", "file", "status", "reason"];
-    header.extend(all_cols.iter().map(String::as_str));
-    w.write_record(&header).map_err(csv_err)?;
-    let cell = |v: Option<&Value>| match v {
-        None | Some(Value::Null) => String::new(),
-        Some(Value::String(s)) => s.clone(),
-        Some(v) => v.to_string(),
+    let json_err = |e: std::io::Error| BatchError::Write {
+        path: json_path.clone(),
+        source: e,
     };
-    for r in &rows {
-        let lookup: HashMap<&str, &Value> =
-            r.values.iter().map(|(k, v)| (k.as_str(), v)).collect();
-        let mut rec = vec![
-            r.frame.to_string(),
-            r.stem.clone(),
-            r.file.clone(),
-            if r.reason.is_none() { "ok" } else { "failed" }.to_string(),
-            r.reason.clone().unwrap_or_default(),
-        ];
-        rec.extend(all_cols.iter().map(|c| cell(lookup.get(c.as_str()).copied())));
-        w.write_record(&rec).map_err(csv_err)?;
-    }
-    let csv_bytes = w
-        .into_inner()
-        .map_err(|e| BatchError::Corrupt {
-            path: out.join(CAMPAIGN_CSV),
+    {
+        let mut w = csv::Writer::from_writer(csv_file.writer());
+        let mut header = vec!["frame", "stem", "file", "status", "reason"];
+        header.extend(all_cols.iter().map(String::as_str));
+        w.write_record(&header).map_err(csv_err)?;
+        let head = serde_json::json!({
+            "bostrack_version": env!("CARGO_PKG_VERSION"),
+            "frames": frames.len(),
+            "complete": frames.len() - failures.len(),
+            "failed": failures.len(),
+            "timing_columns": timing_cols,
+        });
+        // The header object, its closing brace replaced by the rows array.
+        let head = serde_json::to_string_pretty(&head).map_err(|e| BatchError::Corrupt {
+            path: json_path.clone(),
             message: e.to_string(),
         })?;
-    write_atomic(&out.join(CAMPAIGN_CSV), &csv_bytes)?;
+        let head = head.trim_end().trim_end_matches('}').trim_end();
+        let jw = json_file.writer();
+        write!(jw, "{head},\n  \"rows\": [").map_err(json_err)?;
 
-    // campaign.json
-    let json_rows: Vec<Value> = rows
-        .iter()
-        .map(|r| {
-            let mut o = Map::new();
-            o.insert("frame".into(), r.frame.into());
-            o.insert("stem".into(), r.stem.clone().into());
-            o.insert("file".into(), r.file.clone().into());
-            o.insert(
-                "status".into(),
-                if r.reason.is_none() { "ok" } else { "failed" }.into(),
+        let cell = |v: Option<&Value>| match v {
+            None | Some(Value::Null) => String::new(),
+            Some(Value::String(s)) => s.clone(),
+            Some(v) => v.to_string(),
+        };
+        let mut failed = failures.iter().peekable();
+        for (k, f) in frames.iter().enumerate() {
+            let (values, reason) = if failed.peek().is_some_and(|x| x.frame == f.number) {
+                (Flat::new(), failed.next().map(|x| x.reason.clone()))
+            } else {
+                match frame_values(out, f, spec, reasons) {
+                    Ok(v) => (v, None),
+                    // Changed between the passes (another process): report it as failed.
+                    Err(reason) => (Flat::new(), Some(reason)),
+                }
+            };
+            let status = if reason.is_none() { "ok" } else { "failed" };
+            let lookup: HashMap<&str, &Value> =
+                values.iter().map(|(k, v)| (k.as_str(), v)).collect();
+            let mut rec = vec![
+                f.number.to_string(),
+                f.stem.clone(),
+                file_name(&f.path),
+                status.to_string(),
+                reason.clone().unwrap_or_default(),
+            ];
+            rec.extend(
+                all_cols
+                    .iter()
+                    .map(|c| cell(lookup.get(c.as_str()).copied())),
             );
-            if let Some(reason) = &r.reason {
-                o.insert("reason".into(), reason.clone().into());
+            w.write_record(&rec).map_err(csv_err)?;
+
+            let mut o = Map::new();
+            o.insert("frame".into(), f.number.into());
+            o.insert("stem".into(), f.stem.clone().into());
+            o.insert("file".into(), file_name(&f.path).into());
+            o.insert("status".into(), status.into());
+            if let Some(reason) = reason {
+                o.insert("reason".into(), reason.into());
             }
             let mut timings = Map::new();
-            for (k, v) in &r.values {
-                if is_timing(k) {
-                    timings.insert(k.clone(), v.clone());
+            for (key, v) in values {
+                if is_timing(&key) {
+                    timings.insert(key, v);
                 } else {
-                    o.insert(k.clone(), v.clone());
+                    o.insert(key, v);
                 }
             }
             if !timings.is_empty() {
                 o.insert("timings".into(), Value::Object(timings));
             }
-            Value::Object(o)
-        })
-        .collect();
-    let doc = serde_json::json!({
-        "bostrack_version": env!("CARGO_PKG_VERSION"),
-        "frames": rows.len(),
-        "complete": rows.len() - failures.len(),
-        "failed": failures.len(),
-        "timing_columns": timing_cols,
-        "rows": json_rows,
-    });
-    super::write_json(&out.join(CAMPAIGN_JSON), &doc)?;
+            let row =
+                serde_json::to_string(&Value::Object(o)).map_err(|e| BatchError::Corrupt {
+                    path: json_path.clone(),
+                    message: e.to_string(),
+                })?;
+            let sep = if k == 0 { "" } else { "," };
+            write!(jw, "{sep}\n    {row}").map_err(json_err)?;
+        }
+        writeln!(jw, "\n  ]\n}}").map_err(json_err)?;
+        w.flush().map_err(|e| BatchError::Write {
+            path: csv_path.clone(),
+            source: e,
+        })?;
+    }
+    csv_file.commit()?;
+    json_file.commit()?;
     super::write_json(
         &out.join(FAILURES),
         &FailuresFile {
-            frames: rows.len(),
+            frames: frames.len(),
             failed: failures.len(),
             failures: failures.clone(),
         },
     )?;
 
     if let Some(setup) = setup {
-        let points: Vec<CampaignPoint> = rows
-            .iter()
-            .map(|r| CampaignPoint {
-                frame: r.frame,
-                median_d: number(&r.values, &MEDIAN_D),
-                median_u: number(&r.values, &MEDIAN_U),
-            })
-            .collect();
-        let first_complete = frames
-            .iter()
-            .zip(&rows)
-            .find(|(_, r)| r.reason.is_none())
-            .map(|(f, _)| (out.join(&f.stem), f.title(frames.len())));
-        let notes = draw_campaign_figures(
-            out,
-            title,
-            &points,
-            first_complete
-                .as_ref()
-                .map(|(dir, t)| (dir.as_path(), t.as_str())),
-            setup,
-        )?;
+        let detections_from = first_complete.map(|f| out.join(&f.stem));
+        let notes = draw_campaign_figures(out, title, &points, detections_from.as_deref(), setup)?;
         for n in notes {
             progress.note(&n);
         }
@@ -302,10 +334,10 @@ mod tests {
         let v = serde_json::json!({
             "frame": "/x/f1.tif",
             "counts": {"found": 10, "valid": 9},
-            "median_d": 0.5,
+            "medians": {"abs_d": 0.5, "u_d": [0.01, null]},
             "times": {"stages": [["detect", 0.25], ["fit", 1.5]]},
             "wall_seconds": 2.0,
-            "list": [1, 2],
+            "list": [1, 2, 3],
         });
         let mut flat = Flat::new();
         flatten("", &v, &mut flat);
@@ -313,16 +345,18 @@ mod tests {
         for k in [
             "counts.found",
             "counts.valid",
-            "median_d",
+            "medians.abs_d",
+            "medians.u_d.x",
+            "medians.u_d.y",
             "times.stages.detect",
             "times.stages.fit",
             "wall_seconds",
-            "list",
+            "list.2",
         ] {
             assert!(keys.contains(&k), "{k} not in {keys:?}");
         }
         assert!(is_timing("times.stages.fit") && is_timing("wall_seconds"));
-        assert!(!is_timing("counts.valid") && !is_timing("median_d"));
+        assert!(!is_timing("counts.valid") && !is_timing("medians.abs_d"));
         assert_eq!(number(&flat, &MEDIAN_D), 0.5);
         assert!(number(&flat, &MEDIAN_U).is_nan());
     }

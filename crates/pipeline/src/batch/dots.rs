@@ -82,7 +82,11 @@ fn parse_dots(bytes: &[u8]) -> Result<FrameDots, String> {
                 Ok(f64::NAN)
             } else {
                 s.parse::<f64>().map_err(|_| {
-                    format!("row {}: `{s}` in column `{}` is not a number", line + 2, names[k])
+                    format!(
+                        "row {}: `{s}` in column `{}` is not a number",
+                        line + 2,
+                        names[k]
+                    )
                 })
             }
         };
@@ -167,7 +171,11 @@ mod tests {
         assert!(d.ref_fitted[0] && d.ref_fitted[1]);
         assert!(d.dx[1].is_nan() && d.ar_x[1].is_nan() && d.u_dx[1].is_nan());
 
-        assert!(parse_dots(b"i,j\n1,2\n").unwrap_err().contains("no column `x_ref`"));
+        assert!(
+            parse_dots(b"i,j\n1,2\n")
+                .unwrap_err()
+                .contains("no column `x_ref`")
+        );
         let bad = text.replace("true", "maybe");
         assert!(parse_dots(bad.as_bytes()).unwrap_err().contains("row 2"));
     }

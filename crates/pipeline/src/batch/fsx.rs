@@ -11,17 +11,7 @@ const TMP_MARK: &str = ".batch-tmp-";
 /// Writes `bytes` to `path` through a hidden temporary file in the same folder and a rename, so
 /// a reader (or a rerun after a kill) never sees half a file.
 pub(crate) fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), BatchError> {
-    static COUNTER: AtomicU64 = AtomicU64::new(0);
-    let dir = match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let n = COUNTER.fetch_add(1, Ordering::Relaxed);
-    let tmp = dir.join(format!(".{name}{TMP_MARK}{}-{n}", std::process::id()));
+    let tmp = temporary_name(path);
     let result = std::fs::File::create(&tmp)
         .and_then(|mut f| f.write_all(bytes).and_then(|()| f.flush()))
         .and_then(|()| std::fs::rename(&tmp, path));
@@ -33,6 +23,67 @@ pub(crate) fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), BatchError> 
         });
     }
     Ok(())
+}
+
+/// A file written under a hidden temporary name and renamed into place by
+/// [`AtomicFile::commit`]; dropped without a commit, the temporary is removed.
+pub(crate) struct AtomicFile {
+    path: PathBuf,
+    tmp: PathBuf,
+    writer: Option<std::io::BufWriter<std::fs::File>>,
+}
+
+impl AtomicFile {
+    pub(crate) fn create(path: &Path) -> Result<AtomicFile, BatchError> {
+        let tmp = temporary_name(path);
+        let file = std::fs::File::create(&tmp).map_err(|source| BatchError::Write {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        Ok(AtomicFile {
+            path: path.to_path_buf(),
+            tmp,
+            writer: Some(std::io::BufWriter::new(file)),
+        })
+    }
+
+    pub(crate) fn writer(&mut self) -> &mut std::io::BufWriter<std::fs::File> {
+        self.writer.as_mut().expect("not committed")
+    }
+
+    pub(crate) fn commit(mut self) -> Result<(), BatchError> {
+        let w = self.writer.take().expect("not committed");
+        let result = w
+            .into_inner()
+            .map_err(std::io::IntoInnerError::into_error)
+            .and_then(|_| std::fs::rename(&self.tmp, &self.path));
+        result.map_err(|source| BatchError::Write {
+            path: self.path.clone(),
+            source,
+        })
+    }
+}
+
+impl Drop for AtomicFile {
+    fn drop(&mut self) {
+        if self.tmp.exists() {
+            let _ = std::fs::remove_file(&self.tmp);
+        }
+    }
+}
+
+fn temporary_name(path: &Path) -> PathBuf {
+    static COUNTER: AtomicU64 = AtomicU64::new(0);
+    let dir = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let n = COUNTER.fetch_add(1, Ordering::Relaxed);
+    dir.join(format!(".{name}{TMP_MARK}{}-{n}", std::process::id()))
 }
 
 /// Creates `dir` and its parents.
@@ -104,6 +155,21 @@ mod tests {
         assert_eq!(names, ["a.txt"]);
         let e = write_atomic(&dir.path().join("no/such/dir.txt"), b"x").unwrap_err();
         assert!(e.to_string().contains("dir.txt"), "{e}");
+
+        let mut f = AtomicFile::create(&p).unwrap();
+        f.writer().write_all(b"three").unwrap();
+        assert_eq!(std::fs::read(&p).unwrap(), b"two", "not yet committed");
+        f.commit().unwrap();
+        assert_eq!(std::fs::read(&p).unwrap(), b"three");
+        let mut f = AtomicFile::create(&p).unwrap();
+        f.writer().write_all(b"four").unwrap();
+        drop(f);
+        assert_eq!(
+            std::fs::read(&p).unwrap(),
+            b"three",
+            "dropped, not committed"
+        );
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
     }
 
     #[test]

@@ -16,8 +16,8 @@ pub(crate) const RUN_RECORD: &str = "run.toml";
 pub(crate) const SHARDS_DIR: &str = "shards";
 
 /// The sections of `config` that decide the per-frame results: outputs computed under one
-/// record are reused by a run under another only when these (and the reference, stack and mask
-/// files) agree.
+/// record are reused by a run under another only when these, `output.quantities` and the
+/// reference, stack and mask files agree.
 const RESULT_SECTIONS: [&str; 5] = ["input", "detect", "fit", "match", "uncertainty"];
 
 /// `K` and `N` of a shard record.
@@ -77,7 +77,8 @@ pub(crate) struct RunRecord {
     pub reference: Option<toml::Table>,
 }
 
-fn canonical(p: &Path) -> PathBuf {
+/// `p` made absolute (symbolic links resolved) when it exists, else as given.
+pub(crate) fn canonical(p: &Path) -> PathBuf {
     std::fs::canonicalize(p).unwrap_or_else(|_| p.to_path_buf())
 }
 
@@ -141,6 +142,14 @@ impl RunRecord {
             p.as_ref()
                 .map(|p| toml::Value::String(p.display().to_string()))
         };
+        // What is computed per dot also decides the results.
+        key.push((
+            "config.output.quantities".into(),
+            self.config
+                .get("output")
+                .and_then(|o| o.get("quantities"))
+                .cloned(),
+        ));
         key.push((
             "inputs.reference_from".into(),
             Some(toml::Value::String(i.reference_from.clone())),
@@ -205,8 +214,7 @@ pub(crate) fn record_files(out_dir: &Path) -> Vec<PathBuf> {
     if run.is_file() {
         out.push(run);
     }
-    if let Ok(files) = crate::files::list_matching(&out_dir.join(SHARDS_DIR), "shard-*-of-*.toml")
-    {
+    if let Ok(files) = crate::files::list_matching(&out_dir.join(SHARDS_DIR), "shard-*-of-*.toml") {
         out.extend(files);
     }
     out
@@ -279,6 +287,12 @@ mod tests {
         let mut other = r.clone();
         other.config["fit"]["max_iterations"] = toml::Value::Integer(7);
         assert_eq!(other.differs_from(&r).as_deref(), Some("config.fit"));
+        let mut other = r.clone();
+        other.config["output"]["quantities"] = toml::Value::String("displacement".into());
+        assert_eq!(
+            other.differs_from(&r).as_deref(),
+            Some("config.output.quantities")
+        );
         let mut other = r.clone();
         other.inputs.reference = Some(PathBuf::from("/else.tif"));
         assert_eq!(other.differs_from(&r).as_deref(), Some("inputs.reference"));

@@ -10,6 +10,14 @@ use std::str::FromStr;
 /// `((n - 1) mod count) + 1`. Shard `K/N` therefore takes frames `K, K + N, K + 2N, ...`: every
 /// frame is in exactly one shard, and the shards of a campaign differ in size by at most one
 /// frame.
+///
+/// ```
+/// use bostrack_pipeline::Shard;
+/// let s: Shard = "2/3".parse().unwrap();
+/// let frames: Vec<usize> = (1..=10).filter(|&n| s.contains(n)).collect();
+/// assert_eq!(frames, [2, 5, 8]);
+/// assert!("0/3".parse::<Shard>().is_err()); // shards are numbered from 1
+/// ```
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct Shard {
     index: usize,

@@ -1,0 +1,49 @@
+//! One run of the pair pipeline on a campaign, with its stage wall times: for profiling and
+//! instruction counts (`valgrind --tool=callgrind`), where a criterion loop would be too long.
+//!
+//! `cargo run --release -p bostrack-pipeline --example pair_once -- [CONFIG] [fast|lm_crate] [pair|stack]`
+//!
+//! CONFIG defaults to `testdata/bos-sample.toml`. `pair`: no stack, displacement and AR only
+//! (the reference side and one frame); `stack`: the configuration as written (with the no-flow
+//! stack and the uncertainties).
+
+use bostrack_fit::Solver;
+use bostrack_pipeline::{Plan, Quantities, ReferenceContext, load_config, process_frame};
+use std::path::PathBuf;
+use std::time::Instant;
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let config = args.first().map(PathBuf::from).unwrap_or_else(|| {
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../testdata/bos-sample.toml")
+    });
+    let solver = match args.get(1).map(String::as_str) {
+        None | Some("fast") => Solver::Fast,
+        Some("lm_crate") => Solver::LmCrate,
+        Some(s) => return Err(format!("unknown solver `{s}` (fast | lm_crate)").into()),
+    };
+    let with_stack = match args.get(2).map(String::as_str) {
+        None | Some("pair") => false,
+        Some("stack") => true,
+        Some(s) => return Err(format!("unknown mode `{s}` (pair | stack)").into()),
+    };
+    let mut cfg = load_config(&config)?;
+    cfg.fit.solver = solver;
+    if !with_stack {
+        cfg.input.stack_dir = "".into();
+        cfg.output.quantities = Quantities::Amplification;
+    }
+    let plan = Plan::from_config(cfg, &config)?;
+    let t = Instant::now();
+    let ctx = ReferenceContext::prepare(&plan)?;
+    let r = process_frame(&ctx, &plan, &plan.gradients[0])?;
+    println!(
+        "total {:.3} s wall, {} threads",
+        t.elapsed().as_secs_f64(),
+        rayon::current_num_threads()
+    );
+    println!("reference stages: {:?}", ctx.timings().stages);
+    println!("frame stages: {:?}", r.summary.times.stages);
+    println!("counts: {:?}", r.summary.counts);
+    Ok(())
+}

@@ -1,0 +1,293 @@
+//! One gradient frame: track, fit, match, validate, pair.
+
+use super::reference::{ReferenceContext, ar_shapes_name, image_path, size_text, usable};
+use super::stats::{Stopwatch, median, median2, percentile};
+use super::{FrameCounts, FrameMedians, FrameResult, FrameSummary, StageTimes};
+use crate::config::Quantities;
+use crate::error::PipelineError;
+use crate::plan::Plan;
+use bostrack_core::{DotFit, DotFlags, Image};
+use bostrack_displacement::{DisplacementConfig, PairDot, PairInput, pair_dots};
+use bostrack_match::{
+    MatchConfig, MatchMode, MatchedBy, Matches, MedianTest, NearestConfig, ValidationConfig,
+    match_dots, validate,
+};
+use std::path::Path;
+
+/// The fits of one image matched to the reference fits.
+pub(crate) struct Matched {
+    pub fits: Vec<DotFit>,
+    pub pairs: Vec<bostrack_match::Pair>,
+    pub matches: Matches,
+}
+
+/// Track the reference seeds into `img`, fit them, match the fits to the reference fits.
+/// Stage times go to `times` (detect, fit, match) when given.
+pub(crate) fn track_fit_match_timed(
+    ctx: &ReferenceContext,
+    plan: &Plan,
+    img: &Image,
+    path: &Path,
+    mut times: Option<&mut StageTimes>,
+) -> Result<Matched, PipelineError> {
+    let mut sw = Stopwatch::start();
+    let (w, h) = ctx.size;
+    if (img.width(), img.height()) != (w, h) {
+        return Err(PipelineError::SizeMismatch {
+            path: path.to_path_buf(),
+            what: format!("image size (the reference {} has)", ctx.source().display()),
+            expected: size_text(w, h),
+            got: size_text(img.width(), img.height()),
+        });
+    }
+    let mask = ctx.mask.as_ref();
+    let tracked = bostrack_detect::track(img, mask, &ctx.detection, &plan.detect).map_err(|e| {
+        PipelineError::Detect {
+            path: path.to_path_buf(),
+            source: e,
+        }
+    })?;
+    if let Some(t) = times.as_deref_mut() {
+        t.push("detect", sw.lap());
+    }
+    let fits =
+        bostrack_fit::fit_dots(img, mask, &tracked.seeds, &plan.fit, &ctx.noise).map_err(|e| {
+            PipelineError::Fit {
+                path: path.to_path_buf(),
+                source: e,
+            }
+        })?;
+    if let Some(t) = times.as_deref_mut() {
+        t.push("fit", sw.lap());
+    }
+
+    // kd-tree settings: radius = search_radius x spacing; the predictor starts from the median
+    // displacement of the tracked dots (track keeps the reference's seed order), so a camera
+    // motion larger than the radius does not flag every index pair
+    let spacing = ctx.detection.spacing;
+    let found = |f: &DotFlags| !f.contains(DotFlags::MISSING);
+    let init = median2(
+        ctx.detection
+            .seeds
+            .iter()
+            .zip(&tracked.seeds)
+            .filter(|(r, g)| found(&r.flags) && found(&g.flags))
+            .map(|(r, g)| [g.centre[0] - r.centre[0], g.centre[1] - r.centre[1]]),
+    );
+    let initial_displacement = match init {
+        [Some(x), Some(y)] => Some([x, y]),
+        _ => None,
+    };
+    let cfg = MatchConfig {
+        mode: MatchMode::GridIndex,
+        nearest: NearestConfig {
+            radius: plan.matching.search_radius * spacing,
+            initial_displacement,
+            ..NearestConfig::for_spacing(spacing)
+        },
+    };
+    let matches = match_dots(&ctx.fits, &fits, &cfg).map_err(|e| PipelineError::Match {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    })?;
+    if let Some(t) = times {
+        t.push("match", sw.lap());
+    }
+    Ok(Matched {
+        fits,
+        pairs: matches.pairs.clone(),
+        matches,
+    })
+}
+
+pub(crate) fn track_fit_match(
+    ctx: &ReferenceContext,
+    plan: &Plan,
+    img: &Image,
+    path: &Path,
+) -> Result<Matched, PipelineError> {
+    track_fit_match_timed(ctx, plan, img, path, None)
+}
+
+/// Processes one gradient frame: reads it, then [`process_image`]. `plan` must be the plan
+/// the context was prepared from.
+pub fn process_frame(
+    ctx: &ReferenceContext,
+    plan: &Plan,
+    frame: &Path,
+) -> Result<FrameResult, PipelineError> {
+    let mut sw = Stopwatch::start();
+    let img = bostrack_io::read_image(frame)?;
+    let decode = sw.lap();
+    let mut r = process_image(ctx, plan, &img, frame)?;
+    r.summary.times.stages.insert(0, ("decode".into(), decode));
+    Ok(r)
+}
+
+/// Processes one gradient image already in memory; `frame` names it (its file stem is the
+/// result's `stem`). One [`PairDot`] per reference dot, in the reference's order.
+///
+/// Errors: an image of another size than the reference ([`PipelineError::SizeMismatch`]),
+/// detection or fit failures on the whole image, and an image in which no reference dot is
+/// found ([`PipelineError::NoDots`]).
+pub fn process_image(
+    ctx: &ReferenceContext,
+    plan: &Plan,
+    img: &Image,
+    frame: &Path,
+) -> Result<FrameResult, PipelineError> {
+    let mut times = StageTimes::default();
+    let path = if img.meta.source.is_some() {
+        image_path(img, "")
+    } else {
+        frame.to_path_buf()
+    };
+    let m = track_fit_match_timed(ctx, plan, img, &path, Some(&mut times))?;
+    let mut sw = Stopwatch::start();
+    let n = ctx.fits.len();
+    let both =
+        |p: &bostrack_match::Pair| usable(&ctx.fits[p.reference]) && usable(&m.fits[p.gradient]);
+    let matched = m.pairs.iter().filter(|p| both(p)).count();
+    let found = m.fits.iter().filter(|d| usable(d)).count();
+    let reference_fitted = ctx.fits.iter().filter(|d| usable(d)).count();
+    let fraction = matched as f64 / reference_fitted.max(1) as f64;
+    if matched == 0 || fraction < plan.matching.min_matched_fraction {
+        return Err(PipelineError::NoDots {
+            path,
+            message: format!(
+                "only {matched} of the {reference_fitted} fitted reference dots were found in this image \
+                 ({:.1} %, below [match] min_matched_fraction = {}): not an image of the target?",
+                100.0 * fraction,
+                plan.matching.min_matched_fraction
+            ),
+        });
+    }
+
+    // validation: optional threshold, then the normalised median test
+    let position = |d: &DotFit| [d.params.x0, d.params.y0];
+    let pos: Vec<[f64; 2]> = m
+        .pairs
+        .iter()
+        .map(|p| position(&ctx.fits[p.reference]))
+        .collect();
+    let disp: Vec<[f64; 2]> = m
+        .pairs
+        .iter()
+        .map(|p| {
+            if both(p) {
+                let (r, g) = (
+                    position(&ctx.fits[p.reference]),
+                    position(&m.fits[p.gradient]),
+                );
+                [g[0] - r[0], g[1] - r[1]]
+            } else {
+                [f64::NAN, f64::NAN]
+            }
+        })
+        .collect();
+    let vcfg = ValidationConfig {
+        max_displacement: plan.matching.max_displacement,
+        median_test: Some(MedianTest {
+            threshold: plan.matching.median_threshold,
+            epsilon: plan.matching.median_epsilon,
+            ..MedianTest::default()
+        }),
+        replace: false,
+    };
+    let v = validate(&pos, &disp, &vcfg).map_err(|e| PipelineError::Match {
+        path: path.clone(),
+        message: e.to_string(),
+    })?;
+    let mut partner: Vec<Option<usize>> = vec![None; n];
+    let mut flags = vec![DotFlags::NONE; n];
+    for (p, c) in m.pairs.iter().zip(&v.checks) {
+        partner[p.reference] = Some(p.gradient);
+        flags[p.reference] |= p.flags | c.flags();
+    }
+    times.push("validate", sw.lap());
+
+    let dcfg = DisplacementConfig {
+        quantities: match ctx.quantities {
+            Quantities::Displacement => bostrack_displacement::Quantities::Displacement,
+            Quantities::Amplification => bostrack_displacement::Quantities::AmplificationRatio,
+            Quantities::Uncertainty => bostrack_displacement::Quantities::Uncertainty,
+        },
+        ar_variant: plan.uncertainty.ar_variant,
+        ar_shapes: ctx.ar_shapes,
+        reference_position: ctx.reference_position(plan),
+        ..DisplacementConfig::default()
+    };
+    let dots: Vec<PairDot> = pair_dots(
+        (0..n).map(|i| PairInput {
+            reference: Some(&ctx.fits[i]),
+            gradient: partner[i].map(|j| &m.fits[j]),
+            stack: ctx.stack_stats[i],
+            flags: flags[i],
+        }),
+        &dcfg,
+    );
+    times.push("pair", sw.lap());
+
+    let usable_pair = |p: &&bostrack_match::Pair| both(p);
+    let counts = FrameCounts {
+        reference_sites: n,
+        reference_fitted,
+        found,
+        matched,
+        matched_by_index: m
+            .pairs
+            .iter()
+            .filter(usable_pair)
+            .filter(|p| p.by == MatchedBy::GridIndex)
+            .count(),
+        matched_by_nearest: m
+            .pairs
+            .iter()
+            .filter(usable_pair)
+            .filter(|p| p.by == MatchedBy::Nearest)
+            .count(),
+        grid_mismatches: m.matches.grid_mismatches(),
+        unmatched_reference: reference_fitted - matched,
+        unmatched_gradient: found - matched,
+        outliers: v.outliers(),
+        valid: dots.iter().filter(|d| d.valid).count(),
+    };
+    let valid = || dots.iter().filter(|d| d.valid);
+    let medians = FrameMedians {
+        abs_d: median(valid().filter_map(|d| d.displacement.map(|v| v[0].hypot(v[1])))),
+        abs_u_d: median(valid().filter_map(|d| d.u_d.map(|v| v[0].hypot(v[1])))),
+        d: median2(valid().filter_map(|d| d.displacement)),
+        ar: median2(valid().filter_map(|d| d.ar)),
+        ar_p99: [0, 1].map(|a| percentile(valid().filter_map(|d| d.ar.map(|v| v[a])), 99.0)),
+        u_ref: median2(valid().filter_map(|d| d.u_ref)),
+        u_grad: median2(valid().filter_map(|d| d.u_grad)),
+        u_d: median2(valid().filter_map(|d| d.u_d)),
+        crlb_ref: median2(valid().filter_map(|d| d.reference.map(|f| [f.crlb_x, f.crlb_y]))),
+        crlb_grad: median2(valid().filter_map(|d| d.gradient.map(|f| [f.crlb_x, f.crlb_y]))),
+    };
+    let stem = frame
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "frame".into());
+    let summary = FrameSummary {
+        version: env!("CARGO_PKG_VERSION").into(),
+        frame: frame.to_path_buf(),
+        quantities: ctx.quantities.name().into(),
+        ar_shapes: ar_shapes_name(ctx.ar_shapes).into(),
+        ar_variant: match plan.uncertainty.ar_variant {
+            bostrack_displacement::ArVariant::Notes => "notes".into(),
+            bostrack_displacement::ArVariant::Published => "published".into(),
+        },
+        counts,
+        medians,
+        noise: Some(ctx.noise_summary()),
+        stack: ctx.stack.clone(),
+        stack_note: ctx.stack_note.clone(),
+        times,
+    };
+    Ok(FrameResult {
+        stem,
+        dots,
+        summary,
+    })
+}
