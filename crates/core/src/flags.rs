@@ -1,21 +1,96 @@
-use serde::{Deserialize, Deserializer, Serialize, Serializer};
-use std::fmt;
+/// Defines a `u32` bit-flag type whose flags have snake-case names, serialised as `a|b|c`
+/// (empty string for none): constants, `NONE`, `bits`/`from_bits`, `contains`, `intersects`,
+/// `is_empty`, `insert`, `remove`, `parse`, `names`, `|`, `Display` and serde. Used for
+/// [`DotFlags`] and for other crates' flag sets (e.g. `bostrack_theory::TheoryFlags`).
+#[macro_export]
+macro_rules! bit_flags {
+    ($(#[$meta:meta])* $vis:vis struct $T:ident { $($(#[$doc:meta])* $name:ident = $bit:expr, $text:literal;)* }) => {
+        $(#[$meta])*
+        #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+        $vis struct $T(u32);
 
-/// Per-dot problems as bit flags (after SEP): data, not errors. Serialised as `a|b|c`
-/// (empty string for none).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
-pub struct DotFlags(u32);
+        impl $T {
+            $($(#[$doc])* pub const $name: $T = $T(1 << $bit);)*
+            const NAMES: &'static [($T, &'static str)] = &[$(($T::$name, $text)),*];
+            pub const NONE: $T = $T(0);
+            pub const fn bits(self) -> u32 {
+                self.0
+            }
+            pub const fn from_bits(bits: u32) -> Self {
+                $T(bits)
+            }
+            pub const fn contains(self, other: $T) -> bool {
+                self.0 & other.0 == other.0
+            }
+            pub const fn intersects(self, other: $T) -> bool {
+                self.0 & other.0 != 0
+            }
+            pub const fn is_empty(self) -> bool {
+                self.0 == 0
+            }
+            pub fn insert(&mut self, other: $T) {
+                self.0 |= other.0;
+            }
+            pub fn remove(&mut self, other: $T) {
+                self.0 &= !other.0;
+            }
+            /// Parse `a|b|c` (as written by `Display`).
+            pub fn parse(s: &str) -> ::std::result::Result<Self, String> {
+                let mut out = $T::NONE;
+                for part in s.split('|').map(str::trim).filter(|p| !p.is_empty()) {
+                    let (f, _) = Self::NAMES
+                        .iter()
+                        .find(|(_, n)| *n == part)
+                        .ok_or_else(|| format!("unknown flag `{part}`"))?;
+                    out.insert(*f);
+                }
+                Ok(out)
+            }
+            /// Names of the flags that are set.
+            pub fn names(self) -> impl Iterator<Item = &'static str> {
+                Self::NAMES.iter().filter(move |(f, _)| self.contains(*f)).map(|(_, n)| *n)
+            }
+        }
 
-macro_rules! flags {
-    ($($(#[$doc:meta])* $name:ident = $bit:expr, $text:literal;)*) => {
-        impl DotFlags {
-            $($(#[$doc])* pub const $name: DotFlags = DotFlags(1 << $bit);)*
-            const NAMES: &'static [(DotFlags, &'static str)] = &[$((DotFlags::$name, $text)),*];
+        impl ::std::ops::BitOr for $T {
+            type Output = $T;
+            fn bitor(self, rhs: $T) -> $T {
+                $T(self.0 | rhs.0)
+            }
+        }
+
+        impl ::std::ops::BitOrAssign for $T {
+            fn bitor_assign(&mut self, rhs: $T) {
+                self.0 |= rhs.0;
+            }
+        }
+
+        impl ::std::fmt::Display for $T {
+            fn fmt(&self, f: &mut ::std::fmt::Formatter<'_>) -> ::std::fmt::Result {
+                let names: Vec<_> = self.names().collect();
+                f.write_str(&names.join("|"))
+            }
+        }
+
+        impl $crate::__serde::Serialize for $T {
+            fn serialize<S: $crate::__serde::Serializer>(&self, s: S) -> ::std::result::Result<S::Ok, S::Error> {
+                s.collect_str(self)
+            }
+        }
+
+        impl<'de> $crate::__serde::Deserialize<'de> for $T {
+            fn deserialize<D: $crate::__serde::Deserializer<'de>>(d: D) -> ::std::result::Result<Self, D::Error> {
+                let s = <String as $crate::__serde::Deserialize>::deserialize(d)?;
+                $T::parse(&s).map_err(<D::Error as $crate::__serde::de::Error>::custom)
+            }
         }
     };
 }
 
-flags! {
+bit_flags! {
+    /// Per-dot problems as bit flags (after SEP): data, not errors. Serialised as `a|b|c`
+    /// (empty string for none).
+    pub struct DotFlags {
     /// The fit window touches the image border.
     BORDER = 0, "border";
     /// The fit window is cut by the mask.
@@ -43,82 +118,6 @@ flags! {
     /// Fitted shape at a parameter bound (sigma or rho at its limit).
     AT_BOUND = 12, "at_bound";
 }
-
-impl DotFlags {
-    pub const NONE: DotFlags = DotFlags(0);
-    pub const fn bits(self) -> u32 {
-        self.0
-    }
-    pub const fn from_bits(bits: u32) -> Self {
-        DotFlags(bits)
-    }
-    pub const fn contains(self, other: DotFlags) -> bool {
-        self.0 & other.0 == other.0
-    }
-    pub const fn intersects(self, other: DotFlags) -> bool {
-        self.0 & other.0 != 0
-    }
-    pub const fn is_empty(self) -> bool {
-        self.0 == 0
-    }
-    pub fn insert(&mut self, other: DotFlags) {
-        self.0 |= other.0;
-    }
-    pub fn remove(&mut self, other: DotFlags) {
-        self.0 &= !other.0;
-    }
-    /// Parse `a|b|c` (as written by `Display`).
-    pub fn parse(s: &str) -> Result<Self, String> {
-        let mut out = DotFlags::NONE;
-        for part in s.split('|').map(str::trim).filter(|p| !p.is_empty()) {
-            let (f, _) = Self::NAMES
-                .iter()
-                .find(|(_, n)| *n == part)
-                .ok_or_else(|| format!("unknown flag `{part}`"))?;
-            out.insert(*f);
-        }
-        Ok(out)
-    }
-    /// Names of the flags that are set.
-    pub fn names(self) -> impl Iterator<Item = &'static str> {
-        Self::NAMES
-            .iter()
-            .filter(move |(f, _)| self.contains(*f))
-            .map(|(_, n)| *n)
-    }
-}
-
-impl std::ops::BitOr for DotFlags {
-    type Output = DotFlags;
-    fn bitor(self, rhs: DotFlags) -> DotFlags {
-        DotFlags(self.0 | rhs.0)
-    }
-}
-
-impl std::ops::BitOrAssign for DotFlags {
-    fn bitor_assign(&mut self, rhs: DotFlags) {
-        self.0 |= rhs.0;
-    }
-}
-
-impl fmt::Display for DotFlags {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        let names: Vec<_> = self.names().collect();
-        f.write_str(&names.join("|"))
-    }
-}
-
-impl Serialize for DotFlags {
-    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
-        s.collect_str(self)
-    }
-}
-
-impl<'de> Deserialize<'de> for DotFlags {
-    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        let s = String::deserialize(d)?;
-        DotFlags::parse(&s).map_err(serde::de::Error::custom)
-    }
 }
 
 #[cfg(test)]

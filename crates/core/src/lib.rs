@@ -21,6 +21,9 @@ mod lattice;
 mod noise;
 mod window;
 
+#[doc(hidden)]
+pub use serde as __serde;
+
 pub use dot::{DotFit, FitStatus, Gaussian2D, GridIndex};
 pub use flags::DotFlags;
 pub use image::{Image, ImageMeta, Mask, Photometric, SampleFormat, ShapeError};
