@@ -1,10 +1,11 @@
-//! Speed of one fit: fits per second for window sizes 5, 9, 13, each model, both samplings,
+//! Speed of one fit: fits per second for window sizes 5, 9, 13, each model, each sampling
+//! (`auto`, the default, `point`, `integrated`),
 //! the fast solver and the levenberg-marquardt crate, and the cheap estimators.
 //!
 //! `CARGO_TARGET_DIR=/work/targets/fit cargo bench -p bostrack-fit --bench fit`
 
 use bostrack_core::{Gaussian2D, NoiseModel, Window};
-use bostrack_fit::{Estimator, FitConfig, Fitter, Solver, WindowSamples};
+use bostrack_fit::{Estimator, FitConfig, FitSampling, Fitter, Solver, WindowSamples};
 use bostrack_model::{ModelKind, Sampling, render};
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
 use rand::rngs::StdRng;
@@ -54,7 +55,7 @@ fn run(c: &mut Criterion, group: &str, cfgs: &[(String, FitConfig, usize)]) {
     g.throughput(Throughput::Elements(N_WINDOWS as u64));
     let noise = NoiseModel::read(20.0);
     for (name, cfg, half) in cfgs {
-        let data = windows(*half, cfg.sampling, cfg.model);
+        let data = windows(*half, cfg.sampling.image_model(), cfg.model);
         let mut fitter = Fitter::new(cfg);
         let start = [*half as f64, *half as f64];
         g.bench_with_input(BenchmarkId::from_parameter(name), &data, |b, data| {
@@ -85,7 +86,11 @@ fn benches(c: &mut Criterion) {
     };
     // solver x sampling x model on 9x9
     let mut cfgs = Vec::new();
-    for sampling in [Sampling::Point, Sampling::Integrated] {
+    for sampling in [
+        FitSampling::Auto,
+        FitSampling::Point,
+        FitSampling::Integrated,
+    ] {
         for model in [
             ModelKind::Elliptical,
             ModelKind::AxisAligned,
@@ -95,11 +100,7 @@ fn benches(c: &mut Criterion) {
                 let name = format!(
                     "{}/{}/{}/9x9",
                     solver.as_str(),
-                    if sampling == Sampling::Point {
-                        "point"
-                    } else {
-                        "integrated"
-                    },
+                    sampling.as_str(),
                     model_name(model)
                 );
                 cfgs.push((
@@ -119,17 +120,17 @@ fn benches(c: &mut Criterion) {
     // window size, elliptical
     let mut cfgs = Vec::new();
     for half in [2, 4, 6] {
-        for sampling in [Sampling::Point, Sampling::Integrated] {
+        for sampling in [
+            FitSampling::Auto,
+            FitSampling::Point,
+            FitSampling::Integrated,
+        ] {
             for solver in [Solver::Fast, Solver::LmCrate] {
                 let side = 2 * half + 1;
                 let name = format!(
                     "{}/{}/elliptical/{side}x{side}",
                     solver.as_str(),
-                    if sampling == Sampling::Point {
-                        "point"
-                    } else {
-                        "integrated"
-                    }
+                    sampling.as_str()
                 );
                 cfgs.push((
                     name,
@@ -160,7 +161,7 @@ fn benches(c: &mut Criterion) {
     cfgs.push((
         "lsg-fast-point-nobound/9x9".into(),
         FitConfig {
-            sampling: Sampling::Point,
+            sampling: Sampling::Point.into(),
             bound: false,
             ..base.clone()
         },

@@ -43,7 +43,7 @@ fn main() {
                         half,
                         render: sampling,
                         fit: FitConfig {
-                            sampling,
+                            sampling: sampling.into(),
                             ..Default::default()
                         },
                     };
@@ -127,7 +127,7 @@ fn main() {
         };
         let nm = NoiseModel::read(1.0);
         let p = Fitter::new(&FitConfig {
-            sampling: Sampling::Point,
+            sampling: Sampling::Point.into(),
             ..Default::default()
         })
         .fit_samples(&s_in, [4.0, 4.0], None, &nm);

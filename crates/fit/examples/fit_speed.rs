@@ -1,10 +1,10 @@
 //! Plain timing harness (also for `valgrind --tool=callgrind`): fits the same 64 noisy 9x9
 //! windows over and over with one configuration and prints µs per fit and mean iterations.
 //!
-//! `cargo run --release -p bostrack-fit --example fit_speed -- [point|integrated] [elliptical|axis_aligned|circular] [fast|lm_crate|iwc|tpg] [fits] [half]`
+//! `cargo run --release -p bostrack-fit --example fit_speed -- [auto|point|integrated] [elliptical|axis_aligned|circular] [fast|lm_crate|iwc|tpg] [fits] [half]`
 
 use bostrack_core::{Gaussian2D, NoiseModel, Window};
-use bostrack_fit::{Estimator, FitConfig, Fitter, Solver, WindowSamples};
+use bostrack_fit::{Estimator, FitConfig, FitSampling, Fitter, Solver, WindowSamples};
 use bostrack_model::{ModelKind, Sampling, render};
 use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
@@ -14,10 +14,10 @@ use std::time::Instant;
 fn main() {
     let args: Vec<String> = std::env::args().collect();
     let arg = |i: usize, d: &str| args.get(i).cloned().unwrap_or_else(|| d.to_string());
-    let sampling = if arg(1, "integrated") == "point" {
-        Sampling::Point
-    } else {
-        Sampling::Integrated
+    let sampling = match arg(1, "auto").as_str() {
+        "point" => FitSampling::Point,
+        "integrated" => FitSampling::Integrated,
+        _ => FitSampling::Auto,
     };
     let model = match arg(2, "elliptical").as_str() {
         "axis_aligned" => ModelKind::AxisAligned,
@@ -62,7 +62,7 @@ fn main() {
                 rho,
                 background: 100.0,
             };
-            let mut v = render(&g, w, sampling);
+            let mut v = render(&g, w, sampling.image_model());
             for x in v.iter_mut() {
                 let z: f64 = rng.sample(StandardNormal);
                 *x += 20.0 * z;

@@ -30,6 +30,58 @@ impl Estimator {
     }
 }
 
+/// How the fit evaluates the dot model over a pixel.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum FitSampling {
+    /// Pixel-integrated where it matters, fast elsewhere (the default): a dot whose smallest
+    /// conditional sigma (`σx·sqrt(1-ρ²)` or `σy·sqrt(1-ρ²)`) is at least [`AUTO_SIGMA`] px is
+    /// fitted as the point-sampled Gaussian of covariance `Σ + I/12` (the pixel-integrated dot
+    /// has exactly that covariance; its higher cumulants differ by the box's, -1/120 px⁴ per
+    /// axis), and the record reports `Σ` and the amplitude of the same volume; narrower dots
+    /// use the pixel-integrated model. About 4x faster than `integrated` at σ ≈ 1.6 px, and
+    /// indistinguishable in position (test `auto_sampling_matches_integrated`).
+    #[default]
+    Auto,
+    /// The mean of the model over the pixel (erf / Gauss-Legendre), for every dot.
+    Integrated,
+    /// The model's value at the pixel centre: for data that really is point-sampled (and for
+    /// the error-vs-time study); biased on real dots below σ ≈ 0.8 px.
+    Point,
+}
+
+/// Smallest conditional sigma (px) fitted with the pixel-blurred point model by
+/// [`FitSampling::Auto`]. At 1 px the position difference to the pixel-integrated fit is
+/// below 1e-4 px on noise-free dots (test `auto_sampling_matches_integrated`).
+pub const AUTO_SIGMA: f64 = 1.0;
+
+impl FitSampling {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            FitSampling::Auto => "auto",
+            FitSampling::Integrated => "integrated",
+            FitSampling::Point => "point",
+        }
+    }
+    /// The image model the dots are assumed to follow (for bounds and moment corrections):
+    /// pixel-integrated unless `Point`.
+    pub fn image_model(self) -> Sampling {
+        match self {
+            FitSampling::Point => Sampling::Point,
+            FitSampling::Auto | FitSampling::Integrated => Sampling::Integrated,
+        }
+    }
+}
+
+impl From<Sampling> for FitSampling {
+    fn from(s: Sampling) -> Self {
+        match s {
+            Sampling::Point => FitSampling::Point,
+            Sampling::Integrated => FitSampling::Integrated,
+        }
+    }
+}
+
 /// Which least-squares solver fits [`Estimator::Lsg`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, Default)]
 #[serde(rename_all = "snake_case")]
@@ -70,11 +122,11 @@ pub enum Neighbours {
 ///
 /// ```toml
 /// model = "elliptical"      # "elliptical" (7 parameters) | "axis_aligned" (rho = 0) | "circular"
-/// sampling = "integrated"   # "integrated" (mean over the pixel) | "point" (value at the centre)
+/// sampling = "auto"         # "auto" | "integrated" (mean over the pixel) | "point" (value at the centre)
 /// estimator = "lsg"         # "lsg" | "iwc" | "tpg"
 /// solver = "fast"           # "fast" | "lm_crate"
 /// max_iterations = 50       # Levenberg-Marquardt iterations (rejected steps included)
-/// tolerance = 1e-2          # converged when a step is below this many standard deviations
+/// tolerance = 0.05          # converged when a step is below this many standard deviations
 /// neighbours = "subtract"   # "subtract" | "none"
 /// neighbour_passes = 2      # refits with the neighbours subtracted
 /// bound = true              # compute the per-dot Cramér-Rao bound (crlb_x, crlb_y)
@@ -84,21 +136,23 @@ pub enum Neighbours {
 pub struct FitConfig {
     /// Which parameters are free. Default `elliptical`.
     pub model: ModelKind,
-    /// Point-sampled or pixel-integrated model. Default `integrated`: the position bias of a
+    /// Point-sampled or pixel-integrated model. Default `auto` (pixel-integrated, evaluated as
+    /// the pixel-blurred Gaussian where that is exact enough): the position bias of a
     /// point-sampled fit to real (pixel-integrated) dots grows quickly below σ ≈ 0.8 px, and a
     /// point-sampled σ over-states the dot by the pixel's own variance (σ² + 1/12).
-    pub sampling: Sampling,
+    pub sampling: FitSampling,
     /// Default `lsg`.
     pub estimator: Estimator,
     /// Default `fast`.
     pub solver: Solver,
     /// Default 50.
     pub max_iterations: u32,
-    /// Convergence: the Mahalanobis length of the last accepted step, `sqrt(δᵀ N δ)` with `N`
-    /// the Fisher matrix under the noise model, i.e. the step in units of the parameters'
-    /// standard deviations. Default 1e-2: Gauss-Newton steps shrink by 10-100x per iteration
-    /// near the minimum, so the error left is ~1e-3 of a standard deviation or less (1e-3 costs
-    /// one more iteration, ~20 % of the time, for no measurable change in accuracy).
+    /// Convergence: the Mahalanobis length of the next Gauss-Newton step, `sqrt(δᵀ N δ)` with
+    /// `N` the Fisher matrix under the noise model, i.e. the step in units of the parameters'
+    /// standard deviations; a step below it is taken and the fit stops. Default 0.05: what is
+    /// left after that step is of second order. On the real sample (24,465 fits) positions
+    /// differ from fits to 1e-3 by a median 2e-4 and at most 0.018 of their bound (0.01: at
+    /// most 0.003, for ~15 % more evaluations).
     pub tolerance: f64,
     /// Default `subtract`.
     pub neighbours: Neighbours,
@@ -117,11 +171,11 @@ impl Default for FitConfig {
     fn default() -> Self {
         FitConfig {
             model: ModelKind::Elliptical,
-            sampling: Sampling::Integrated,
+            sampling: FitSampling::Auto,
             estimator: Estimator::Lsg,
             solver: Solver::Fast,
             max_iterations: 50,
-            tolerance: 1e-2,
+            tolerance: 0.05,
             neighbours: Neighbours::Subtract,
             neighbour_passes: 2,
             bound: true,
@@ -157,7 +211,7 @@ mod tests {
             toml::from_str("model = \"circular\"\nsampling = \"point\"\nsolver = \"lm_crate\"")
                 .unwrap();
         assert_eq!(c.model, ModelKind::Circular);
-        assert_eq!(c.sampling, Sampling::Point);
+        assert_eq!(c.sampling, FitSampling::Point);
         assert_eq!(c.solver, Solver::LmCrate);
         assert_eq!(c.max_iterations, 50);
         let d: FitConfig = toml::from_str("").unwrap();
@@ -170,8 +224,8 @@ mod tests {
 
     #[test]
     fn doc_example_parses_to_defaults() {
-        let doc = "model = \"elliptical\"\nsampling = \"integrated\"\nestimator = \"lsg\"\nsolver = \"fast\"\n\
-                   max_iterations = 50\ntolerance = 1e-2\nneighbours = \"subtract\"\nneighbour_passes = 2\nbound = true\n";
+        let doc = "model = \"elliptical\"\nsampling = \"auto\"\nestimator = \"lsg\"\nsolver = \"fast\"\n\
+                   max_iterations = 50\ntolerance = 0.05\nneighbours = \"subtract\"\nneighbour_passes = 2\nbound = true\n";
         assert_eq!(
             toml::from_str::<FitConfig>(doc).unwrap(),
             FitConfig::default()

@@ -1,14 +1,14 @@
 //! Fitting every dot of an image, in parallel, with the neighbours' tails subtracted.
 
 use crate::FitError;
-use crate::config::{Estimator, FitConfig, Neighbours};
-use crate::eval::{IA, theta_from_gaussian};
+use crate::config::{AUTO_SIGMA, Estimator, FitConfig, FitSampling, Neighbours};
+use crate::eval::{IA, conditional_sigma, pixel_blur, theta_from_gaussian};
 use crate::fit::Fitter;
 use bostrack_core::{
     DotFit, DotFlags, FitStatus, Gaussian2D, Image, Mask, NoiseModel, Seed, Window,
 };
+use bostrack_model::Sampling;
 use rayon::prelude::*;
-use std::collections::HashMap;
 
 /// Sigmas beyond which a neighbour's dot is taken as zero (exp(-12.5) ≈ 4e-6 of its peak).
 const REACH_SIGMAS: f64 = 5.0;
@@ -65,9 +65,64 @@ pub fn fit_dots(
         )
         .collect();
     for pass in 0..cfg.neighbour_passes {
-        prev = subtract_pass(img, mask, seeds, cfg, noise, &prev, pass == 0);
+        let last = pass + 1 == cfg.neighbour_passes;
+        prev = subtract_pass(img, mask, seeds, cfg, noise, &prev, pass == 0, last);
     }
     Ok(prev)
+}
+
+/// Fits every seed's window once, starting from `prior` (one record per seed: fits of the same
+/// dots in a similar image, e.g. the reference's fits moved by the camera's common shift, for
+/// the images of a no-flow stack).
+///
+/// With [`Neighbours::Subtract`] (least-squares estimator) each window first has the `prior`
+/// dots of its neighbours subtracted: one block-Jacobi pass from `prior` instead of
+/// [`fit_dots`]' moment estimates and `neighbour_passes` passes. Otherwise each window is
+/// fitted from its prior's shape. A prior that is not a usable fit makes its dot start from
+/// the seed (and, as a neighbour, not be subtracted).
+///
+/// Errors: as [`fit_dots`], and [`FitError::InvalidConfig`] if `prior` and `seeds` differ in
+/// length.
+pub fn refit_dots(
+    img: &Image,
+    mask: Option<&Mask>,
+    seeds: &[Seed],
+    cfg: &FitConfig,
+    noise: &NoiseModel,
+    prior: &[DotFit],
+) -> Result<Vec<DotFit>, FitError> {
+    cfg.validate()?;
+    if prior.len() != seeds.len() {
+        return Err(FitError::InvalidConfig(format!(
+            "refit_dots: {} prior fits for {} seeds",
+            prior.len(),
+            seeds.len()
+        )));
+    }
+    if let Some(m) = mask.filter(|m| !m.matches(img)) {
+        return Err(FitError::MaskSize {
+            mask_w: m.width(),
+            mask_h: m.height(),
+            img_w: img.width(),
+            img_h: img.height(),
+        });
+    }
+    if cfg.neighbours == Neighbours::Subtract && cfg.estimator == Estimator::Lsg {
+        return Ok(subtract_pass(
+            img, mask, seeds, cfg, noise, prior, true, true,
+        ));
+    }
+    Ok(seeds
+        .par_iter()
+        .zip(prior)
+        .map_init(
+            || Fitter::new(cfg),
+            |f, (s, p)| {
+                let hint = p.status.is_ok().then_some(&p.params);
+                fit_seed(f, img, mask, s, hint, noise)
+            },
+        )
+        .collect())
 }
 
 /// One block-Jacobi pass: every dot refitted after subtracting its neighbours' fits of `prev`
@@ -80,14 +135,24 @@ fn subtract_pass(
     noise: &NoiseModel,
     prev: &[DotFit],
     first: bool,
+    last: bool,
 ) -> Vec<DotFit> {
-    let index = NeighbourIndex::new(prev);
+    // every neighbour's rendering parameters once per pass, not once per window it reaches
+    let models: Vec<Option<NeighbourModel>> = prev
+        .par_iter()
+        .map(|f| NeighbourModel::new(f, cfg.sampling))
+        .collect();
+    let index = NeighbourIndex::new(&models);
     seeds
         .par_iter()
         .enumerate()
         .map_init(
-            || Fitter::new(cfg),
-            |f, (i, s)| {
+            || {
+                let mut f = Fitter::new(cfg);
+                f.intermediate = !last;
+                (f, Vec::new())
+            },
+            |(f, near), (i, s)| {
                 if s.flags.contains(DotFlags::MISSING) {
                     return prev[i];
                 }
@@ -95,20 +160,18 @@ fn subtract_pass(
                 let own = &prev[i];
                 let win = Window::new(f.ws.wx, f.ws.wy, f.ws.w, f.ws.h);
                 let mut subtracted = 0;
-                for j in index.near(win) {
-                    if j == i {
+                index.near(win, near);
+                for &j in near.iter() {
+                    let Some(m) = &models[j] else { continue };
+                    if j == i || !m.reaches(win) || same_seed(s, &seeds[j]) {
                         continue;
                     }
-                    let nb = &prev[j].params;
-                    if !reaches(nb, win) || same_seed(s, &seeds[j]) {
-                        continue;
-                    }
-                    let th = theta_from_gaussian(nb);
-                    crate::eval::dot_factor(&mut f.ws, &th, cfg.sampling);
+                    crate::eval::dot_factor(&mut f.ws, &m.theta, m.sampling);
                     let ws = &mut f.ws;
+                    let amp = m.theta[IA];
                     let n = ws.len();
                     for k in 0..n {
-                        ws.data[k] -= ws.keep[k] * th[IA] * ws.tmp[k];
+                        ws.data[k] -= ws.keep[k] * amp * ws.tmp[k];
                     }
                     subtracted += 1;
                 }
@@ -127,6 +190,51 @@ fn subtract_pass(
             },
         )
         .collect()
+}
+
+/// A fitted dot as it is subtracted from its neighbours' windows.
+struct NeighbourModel {
+    /// Rendering parameters: the pixel-blurred dot with point sampling where `auto` sampling
+    /// allows it (one `exp_grid`, no per-pixel correction), the fitted dot otherwise.
+    theta: crate::eval::Theta,
+    sampling: Sampling,
+    /// Centre and 5σ reach (px).
+    x0: f64,
+    y0: f64,
+    rx: f64,
+    ry: f64,
+}
+
+impl NeighbourModel {
+    fn new(f: &DotFit, sampling: FitSampling) -> Option<NeighbourModel> {
+        let g = &f.params;
+        if !f.status.is_ok() || !g.is_valid() || g.amplitude.is_nan() || g.amplitude <= 0.0 {
+            return None;
+        }
+        let th = theta_from_gaussian(g);
+        let (theta, sampling) = match sampling {
+            FitSampling::Auto if conditional_sigma(&th) >= AUTO_SIGMA => {
+                (pixel_blur(&th), Sampling::Point)
+            }
+            s => (th, s.image_model()),
+        };
+        Some(NeighbourModel {
+            theta,
+            sampling,
+            x0: g.x0,
+            y0: g.y0,
+            rx: REACH_SIGMAS * g.sigma_x,
+            ry: REACH_SIGMAS * g.sigma_y,
+        })
+    }
+
+    /// Whether the dot's 5σ ellipse-bounding box touches the window's pixel area.
+    fn reaches(&self, w: Window) -> bool {
+        self.x0 + self.rx >= w.x as f64 - 0.5
+            && self.x0 - self.rx <= (w.x + w.width as i64) as f64 - 0.5
+            && self.y0 + self.ry >= w.y as f64 - 0.5
+            && self.y0 - self.ry <= (w.y + w.height as i64) as f64 - 0.5
+    }
 }
 
 fn fit_seed(
@@ -165,67 +273,116 @@ fn fit_seed(
     fit
 }
 
-/// Whether the dot's 5σ ellipse-bounding box touches the window's pixel area.
-fn reaches(g: &Gaussian2D, w: Window) -> bool {
-    if !g.is_valid() || g.amplitude.is_nan() || g.amplitude <= 0.0 {
-        return false;
-    }
-    let (rx, ry) = (REACH_SIGMAS * g.sigma_x, REACH_SIGMAS * g.sigma_y);
-    g.x0 + rx >= w.x as f64 - 0.5
-        && g.x0 - rx <= (w.x + w.width as i64) as f64 - 0.5
-        && g.y0 + ry >= w.y as f64 - 0.5
-        && g.y0 - ry <= (w.y + w.height as i64) as f64 - 0.5
-}
-
 /// Two seeds closer than 1.5 px are the same dot found twice: never subtract one from the other.
 fn same_seed(a: &Seed, b: &Seed) -> bool {
-    (a.centre[0] - b.centre[0]).hypot(a.centre[1] - b.centre[1]) < 1.5
+    let (dx, dy) = (a.centre[0] - b.centre[0], a.centre[1] - b.centre[1]);
+    dx * dx + dy * dy < 1.5 * 1.5
 }
 
-/// Buckets of fitted dots on a coarse grid, for finding the neighbours of a window.
+/// Fitted dots bucketed on a coarse grid, for finding the neighbours of a window.
 struct NeighbourIndex {
     cell: f64,
     reach: f64,
-    buckets: HashMap<(i64, i64), Vec<usize>>,
+    /// Grid origin (cell coordinates of bucket 0) and size.
+    cx0: i64,
+    cy0: i64,
+    nx: usize,
+    ny: usize,
+    /// Bucket `k` holds `items[start[k]..start[k + 1]]` (ascending dot indices).
+    start: Vec<u32>,
+    items: Vec<u32>,
 }
 
 impl NeighbourIndex {
-    fn new(fits: &[DotFit]) -> NeighbourIndex {
-        let mut reach: f64 = 0.0;
-        let mut buckets: HashMap<(i64, i64), Vec<usize>> = HashMap::new();
+    fn new(models: &[Option<NeighbourModel>]) -> NeighbourIndex {
         let cell = 16.0;
-        for (i, f) in fits.iter().enumerate() {
-            let p = &f.params;
-            if !f.status.is_ok() || !p.is_valid() {
-                continue;
+        let key = |m: &NeighbourModel| ((m.x0 / cell).floor() as i64, (m.y0 / cell).floor() as i64);
+        let mut reach: f64 = 0.0;
+        let (mut lo, mut hi) = ((i64::MAX, i64::MAX), (i64::MIN, i64::MIN));
+        for m in models.iter().flatten() {
+            reach = reach.max(m.rx.max(m.ry));
+            let (kx, ky) = key(m);
+            lo = (lo.0.min(kx), lo.1.min(ky));
+            hi = (hi.0.max(kx), hi.1.max(ky));
+        }
+        if lo.0 > hi.0 {
+            return NeighbourIndex {
+                cell,
+                reach,
+                cx0: 0,
+                cy0: 0,
+                nx: 0,
+                ny: 0,
+                start: vec![0],
+                items: Vec::new(),
+            };
+        }
+        let (nx, ny) = ((hi.0 - lo.0 + 1) as usize, (hi.1 - lo.1 + 1) as usize);
+        let bucket = |m: &NeighbourModel| {
+            let (kx, ky) = key(m);
+            (ky - lo.1) as usize * nx + (kx - lo.0) as usize
+        };
+        // counting sort into buckets (dot indices stay ascending within a bucket)
+        let mut start = vec![0u32; nx * ny + 1];
+        for m in models.iter().flatten() {
+            start[bucket(m) + 1] += 1;
+        }
+        for k in 0..nx * ny {
+            start[k + 1] += start[k];
+        }
+        let mut fill = start.clone();
+        let mut items = vec![0u32; start[nx * ny] as usize];
+        for (i, m) in models.iter().enumerate() {
+            if let Some(m) = m {
+                let b = bucket(m);
+                items[fill[b] as usize] = i as u32;
+                fill[b] += 1;
             }
-            reach = reach.max(REACH_SIGMAS * p.sigma_x.max(p.sigma_y));
-            let key = ((p.x0 / cell).floor() as i64, (p.y0 / cell).floor() as i64);
-            buckets.entry(key).or_default().push(i);
         }
         NeighbourIndex {
             cell,
             reach,
-            buckets,
+            cx0: lo.0,
+            cy0: lo.1,
+            nx,
+            ny,
+            start,
+            items,
         }
     }
 
-    /// Indices of the fitted dots whose centre is within the largest reach of the window
-    /// (ascending, so the subtraction order and hence the result are deterministic).
-    fn near(&self, w: Window) -> Vec<usize> {
-        let x0 = ((w.x as f64 - 0.5 - self.reach) / self.cell).floor() as i64;
-        let x1 = (((w.x + w.width as i64) as f64 + self.reach) / self.cell).floor() as i64;
-        let y0 = ((w.y as f64 - 0.5 - self.reach) / self.cell).floor() as i64;
-        let y1 = (((w.y + w.height as i64) as f64 + self.reach) / self.cell).floor() as i64;
-        let mut out = Vec::new();
+    /// Writes into `out` the indices of the fitted dots whose centre is within the largest
+    /// reach of the window (ascending, so the subtraction order and hence the result are
+    /// deterministic).
+    fn near(&self, w: Window, out: &mut Vec<usize>) {
+        out.clear();
+        if self.nx == 0 {
+            return;
+        }
+        let cells = |lo: f64, hi: f64, c0: i64, n: usize| {
+            let a = ((lo / self.cell).floor() as i64 - c0).max(0);
+            let b = ((hi / self.cell).floor() as i64 - c0).min(n as i64 - 1);
+            (a, b)
+        };
+        let (x0, x1) = cells(
+            w.x as f64 - 0.5 - self.reach,
+            (w.x + w.width as i64) as f64 + self.reach,
+            self.cx0,
+            self.nx,
+        );
+        let (y0, y1) = cells(
+            w.y as f64 - 0.5 - self.reach,
+            (w.y + w.height as i64) as f64 + self.reach,
+            self.cy0,
+            self.ny,
+        );
         for cy in y0..=y1 {
             for cx in x0..=x1 {
-                if let Some(b) = self.buckets.get(&(cx, cy)) {
-                    out.extend_from_slice(b);
-                }
+                let k = cy as usize * self.nx + cx as usize;
+                let items = &self.items[self.start[k] as usize..self.start[k + 1] as usize];
+                out.extend(items.iter().map(|&i| i as usize));
             }
         }
         out.sort_unstable();
-        out
     }
 }

@@ -78,6 +78,51 @@ pub(crate) fn gaussian_from_theta(t: &Theta) -> Gaussian2D {
     }
 }
 
+/// Variance of a uniform pixel of unit side: the pixel-integrated dot of covariance Σ has
+/// covariance Σ + I/12.
+const PIXEL_VAR: f64 = 1.0 / 12.0;
+
+/// The smallest conditional sigma of θ's shape, `min(σx, σy)·sqrt(1-ρ²)`: the width that sets
+/// how far the pixel-integrated dot is from its pixel-blurred Gaussian.
+pub(crate) fn conditional_sigma(t: &Theta) -> f64 {
+    let r = t[IT].tanh();
+    t[IU].min(t[IV]).exp() * (1.0 - r * r).max(0.0).sqrt()
+}
+
+/// θ of the pixel-blurred dot: covariance Σ + I/12, amplitude scaled to the same volume
+/// (`A·sqrt(det Σ / det Σ')`); centre and background unchanged.
+pub(crate) fn pixel_blur(t: &Theta) -> Theta {
+    let (sx, sy, r) = (t[IU].exp(), t[IV].exp(), t[IT].tanh());
+    let (vx, vy) = (sx * sx + PIXEL_VAR, sy * sy + PIXEL_VAR);
+    let c = r * sx * sy;
+    let det = sx * sx * sy * sy * (1.0 - r * r);
+    let det_b = vx * vy - c * c;
+    let mut b = *t;
+    b[IU] = 0.5 * vx.ln();
+    b[IV] = 0.5 * vy.ln();
+    b[IT] = (c / (vx * vy).sqrt()).atanh();
+    b[IA] = t[IA] * (det / det_b).sqrt();
+    b
+}
+
+/// Inverse of [`pixel_blur`]; `None` when Σ' - I/12 is not positive definite.
+pub(crate) fn pixel_unblur(b: &Theta) -> Option<Theta> {
+    let (sx, sy, r) = (b[IU].exp(), b[IV].exp(), b[IT].tanh());
+    let (vx, vy) = (sx * sx - PIXEL_VAR, sy * sy - PIXEL_VAR);
+    let c = r * sx * sy;
+    let det = vx * vy - c * c;
+    if !(vx > 0.0 && vy > 0.0 && det > 0.0 && det.is_finite()) {
+        return None;
+    }
+    let det_b = sx * sx * sy * sy * (1.0 - r * r);
+    let mut t = *b;
+    t[IU] = 0.5 * vx.ln();
+    t[IV] = 0.5 * vy.ln();
+    t[IT] = (c / (vx * vy).sqrt()).atanh();
+    t[IA] = b[IA] * (det_b / det).sqrt();
+    Some(t)
+}
+
 /// Precision-matrix coefficients and the ρ-derivative coefficients of a shape (u, v, t).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(crate) struct Shape {
@@ -321,7 +366,8 @@ pub(crate) struct Workspace {
     /// 1 for usable pixels, 0 otherwise.
     pub keep: Vec<f64>,
     pub n_used: usize,
-    /// Current and trial weights (keep / variance).
+    /// The solve's fixed weights (keep / variance of the model at the solve's start), and
+    /// scratch for refreshed ones.
     pub w_cur: Vec<f64>,
     pub w_new: Vec<f64>,
     /// E (point) or φ̄0 (integrated) of the last evaluation, and the other φ̄ components.
@@ -381,15 +427,14 @@ impl Workspace {
 /// What one evaluation pass returns.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Pass {
-    /// Σ w_cur r² (weights of the point the step was computed at).
-    pub cost_cur: f64,
-    /// Σ w_new r² (weights of this point).
-    pub cost_new: f64,
+    /// Σ w r² with the solve's fixed weights (`w_cur`; `keep / read variance` with constant
+    /// noise).
+    pub cost: f64,
     /// Σ keep r² (unweighted residual sum of squares).
     pub ssr: f64,
-    /// Gram matrix of the basis φ with weights w_new (symmetric, full).
+    /// Gram matrix of the basis φ with the same weights (symmetric, full).
     pub gram: [[f64; 7]; 7],
-    /// Σ w_new r φ.
+    /// Σ w r φ.
     pub grad: [f64; 7],
     pub finite: bool,
 }
@@ -405,9 +450,9 @@ const BASIS: [(usize, usize, usize); 7] = [
     (0, 0, 0),
 ];
 
-/// Evaluates the model at θ over the workspace window; with `jac` also the Gram matrix and
-/// gradient. Weights: `w_cur` must hold the weights of the current point; `w_new` receives the
-/// weights at θ (with constant noise neither is used: the sums use `keep` and 1/variance).
+/// Evaluates the model at θ over the workspace window, with the Gram matrix and gradient.
+/// Weights: with signal-dependent noise `w_cur` holds the solve's fixed weights
+/// ([`set_weights`]); with constant noise the sums use `keep` and 1/variance.
 pub(crate) fn evaluate(
     ws: &mut Workspace,
     theta: &Theta,
@@ -441,135 +486,77 @@ fn eval_point_moments(ws: &mut Workspace, theta: &Theta, noise: &NoiseModel) -> 
     let (amp, bg) = (theta[IA], theta[IB]);
     let variable = !noise.is_constant();
     // constant noise: accumulate with the 0/1 keep and apply 1/variance at the end
-    let inv_var = 1.0 / noise.variance(f64::NEG_INFINITY);
+    let scale = if variable {
+        1.0
+    } else {
+        1.0 / noise.variance(f64::NEG_INFINITY)
+    };
     let mut m2 = [[0.0f64; 5]; 5];
     let mut m1 = [[0.0f64; 3]; 3];
     let mut r1 = [[0.0f64; 3]; 3];
-    let (mut m0, mut r0, mut cost_cur, mut cost_new, mut ssr) = (0.0, 0.0, 0.0, 0.0, 0.0);
-    if variable {
-        for j in 0..h {
-            let row = j * w..(j + 1) * w;
-            let e = &ws.e[row.clone()];
-            let d = &ws.data[row.clone()];
-            let kp = &ws.keep[row.clone()];
-            let wc = &ws.w_cur[row.clone()];
-            let wn = &mut ws.w_new[row];
-            let xp = &ws.xp[..w];
-            let mut s2 = [0.0f64; 5];
-            let mut s1 = [0.0f64; 3];
-            let mut t1 = [0.0f64; 3];
-            let (mut t0, mut w0, mut cc, mut cn) = (0.0, 0.0, 0.0, 0.0);
-            for (((((&ei, &di), &ki), &wci), wni), xp) in
-                e.iter().zip(d).zip(kp).zip(wc).zip(wn.iter_mut()).zip(xp)
-            {
-                let mu = bg + amp * ei;
-                let r = di - mu;
-                let wv = ki / noise.variance(mu);
-                *wni = wv;
-                let wr = wv * r;
-                cc += wci * r * r;
-                cn += wr * r;
-                ssr += ki * r * r;
-                let we = wv * ei;
-                let we2 = we * ei;
-                let wre = wr * ei;
-                s2[0] += we2;
-                s2[1] += we2 * xp[1];
-                s2[2] += we2 * xp[2];
-                s2[3] += we2 * xp[3];
-                s2[4] += we2 * xp[4];
-                s1[0] += we;
-                s1[1] += we * xp[1];
-                s1[2] += we * xp[2];
-                t1[0] += wre;
-                t1[1] += wre * xp[1];
-                t1[2] += wre * xp[2];
-                t0 += wr;
-                w0 += wv;
-            }
-            let y = y_first + j as f64;
-            let y2 = y * y;
-            let yp = [1.0, y, y2, y2 * y, y2 * y2];
-            for m in 0..5 {
-                for n in 0..5 - m {
-                    m2[m][n] += s2[m] * yp[n];
-                }
-            }
-            for m in 0..3 {
-                for n in 0..3 - m {
-                    m1[m][n] += s1[m] * yp[n];
-                    r1[m][n] += t1[m] * yp[n];
-                }
-            }
-            r0 += t0;
-            m0 += w0;
-            cost_cur += cc;
-            cost_new += cn;
+    let (mut m0, mut r0, mut cost, mut ssr) = (0.0, 0.0, 0.0, 0.0);
+    for j in 0..h {
+        let row = j * w..(j + 1) * w;
+        let e = &ws.e[row.clone()];
+        let d = &ws.data[row.clone()];
+        let kp = &ws.keep[row.clone()];
+        let wt = if variable { &ws.w_cur[row] } else { kp };
+        let mut s2 = [0.0f64; 5];
+        let mut s1 = [0.0f64; 3];
+        let mut t1 = [0.0f64; 3];
+        let (mut t0, mut w0, mut cc, mut sq) = (0.0, 0.0, 0.0, 0.0);
+        for ((((&ei, &di), &ki), &wi), xp) in e.iter().zip(d).zip(kp).zip(wt).zip(&ws.xp[..w]) {
+            let r = di - (bg + amp * ei);
+            let wr = wi * r;
+            let we = wi * ei;
+            let we2 = we * ei;
+            let wre = wr * ei;
+            cc += wr * r;
+            sq += ki * r * r;
+            s2[0] += we2;
+            s2[1] += we2 * xp[1];
+            s2[2] += we2 * xp[2];
+            s2[3] += we2 * xp[3];
+            s2[4] += we2 * xp[4];
+            s1[0] += we;
+            s1[1] += we * xp[1];
+            s1[2] += we * xp[2];
+            t1[0] += wre;
+            t1[1] += wre * xp[1];
+            t1[2] += wre * xp[2];
+            t0 += wr;
+            w0 += wi;
         }
-    } else {
-        // constant noise: unweighted sums (keep only), 1/variance applied below
-        for j in 0..h {
-            let row = j * w..(j + 1) * w;
-            let e = &ws.e[row.clone()];
-            let d = &ws.data[row.clone()];
-            let kp = &ws.keep[row];
-            let mut s2 = [0.0f64; 5];
-            let mut s1 = [0.0f64; 3];
-            let mut t1 = [0.0f64; 3];
-            let (mut t0, mut w0, mut cc) = (0.0, 0.0, 0.0);
-            for (((&ei, &di), &ki), xp) in e.iter().zip(d).zip(kp).zip(&ws.xp[..w]) {
-                let r = di - (bg + amp * ei);
-                let kr = ki * r;
-                let ke = ki * ei;
-                let ke2 = ke * ei;
-                let kre = kr * ei;
-                cc += kr * r;
-                s2[0] += ke2;
-                s2[1] += ke2 * xp[1];
-                s2[2] += ke2 * xp[2];
-                s2[3] += ke2 * xp[3];
-                s2[4] += ke2 * xp[4];
-                s1[0] += ke;
-                s1[1] += ke * xp[1];
-                s1[2] += ke * xp[2];
-                t1[0] += kre;
-                t1[1] += kre * xp[1];
-                t1[2] += kre * xp[2];
-                t0 += kr;
-                w0 += ki;
+        let y = y_first + j as f64;
+        let y2 = y * y;
+        let yp = [1.0, y, y2, y2 * y, y2 * y2];
+        for m in 0..5 {
+            for n in 0..5 - m {
+                m2[m][n] += s2[m] * yp[n];
             }
-            let y = y_first + j as f64;
-            let y2 = y * y;
-            let yp = [1.0, y, y2, y2 * y, y2 * y2];
-            for m in 0..5 {
-                for n in 0..5 - m {
-                    m2[m][n] += s2[m] * yp[n];
-                }
-            }
-            for m in 0..3 {
-                for n in 0..3 - m {
-                    m1[m][n] += s1[m] * yp[n];
-                    r1[m][n] += t1[m] * yp[n];
-                }
-            }
-            r0 += t0;
-            m0 += w0;
-            cost_cur += cc;
         }
-        // the sums above were unweighted (keep only)
-        ssr = cost_cur;
-        cost_cur *= inv_var;
-        cost_new = cost_cur;
-        m0 *= inv_var;
-        r0 *= inv_var;
+        for m in 0..3 {
+            for n in 0..3 - m {
+                m1[m][n] += s1[m] * yp[n];
+                r1[m][n] += t1[m] * yp[n];
+            }
+        }
+        r0 += t0;
+        m0 += w0;
+        cost += cc;
+        ssr += sq;
+    }
+    if !variable {
+        cost *= scale;
+        m0 *= scale;
+        r0 *= scale;
         for row in m2.iter_mut() {
-            row.iter_mut().for_each(|v| *v *= inv_var);
+            row.iter_mut().for_each(|v| *v *= scale);
         }
         for (a, b) in m1.iter_mut().zip(r1.iter_mut()) {
-            a.iter_mut().for_each(|v| *v *= inv_var);
-            b.iter_mut().for_each(|v| *v *= inv_var);
+            a.iter_mut().for_each(|v| *v *= scale);
+            b.iter_mut().for_each(|v| *v *= scale);
         }
-        // (w_new is not used with constant noise)
     }
     let mut gram = [[0.0; 7]; 7];
     let mut grad = [0.0; 7];
@@ -584,13 +571,9 @@ fn eval_point_moments(ws: &mut Workspace, theta: &Theta, noise: &NoiseModel) -> 
             };
         }
     }
-    let finite = cost_cur.is_finite()
-        && cost_new.is_finite()
-        && gram[0][0].is_finite()
-        && gram[3][3].is_finite();
+    let finite = cost.is_finite() && gram[0][0].is_finite() && gram[3][3].is_finite();
     Pass {
-        cost_cur,
-        cost_new,
+        cost,
         ssr,
         gram,
         grad,
@@ -765,22 +748,15 @@ pub(crate) fn eval_general(ws: &mut Workspace, theta: &Theta, noise: &NoiseModel
     let inv_var = 1.0 / noise.variance(f64::NEG_INFINITY);
     let mut g = [0.0f64; 28];
     let mut grad = [0.0f64; 7];
-    let (mut cost_cur, mut cost_new, mut ssr) = (0.0, 0.0, 0.0);
+    let (mut cost, mut ssr) = (0.0, 0.0);
     let [p1, p2, p3, p4, p5] = &ws.phi;
     for k in 0..n {
         let f = [ws.e[k], p1[k], p2[k], p3[k], p4[k], p5[k]];
         let mu = bg + amp * f[0];
         let r = ws.data[k] - mu;
         let kp = ws.keep[k];
-        let wni = if variable {
-            let wv = kp / noise.variance(mu);
-            cost_cur += ws.w_cur[k] * r * r;
-            cost_new += wv * r * r;
-            ws.w_new[k] = wv;
-            wv
-        } else {
-            kp
-        };
+        let wni = if variable { ws.w_cur[k] } else { kp };
+        cost += wni * r * r;
         ssr += kp * r * r;
         let wr = wni * r;
         // the constant basis function φ6 = 1
@@ -800,8 +776,7 @@ pub(crate) fn eval_general(ws: &mut Workspace, theta: &Theta, noise: &NoiseModel
     if !variable {
         g.iter_mut().for_each(|v| *v *= inv_var);
         grad.iter_mut().for_each(|v| *v *= inv_var);
-        cost_cur = ssr * inv_var;
-        cost_new = cost_cur;
+        cost *= inv_var;
     }
     let mut gram = [[0.0; 7]; 7];
     let mut idx = 0;
@@ -815,10 +790,9 @@ pub(crate) fn eval_general(ws: &mut Workspace, theta: &Theta, noise: &NoiseModel
         gram[6][b] = g[21 + b];
     }
     gram[6][6] = g[27];
-    let finite = cost_cur.is_finite() && cost_new.is_finite() && g.iter().all(|v| v.is_finite());
+    let finite = cost.is_finite() && g.iter().all(|v| v.is_finite());
     Pass {
-        cost_cur,
-        cost_new,
+        cost,
         ssr,
         gram,
         grad,
@@ -924,6 +898,51 @@ pub(crate) fn dot_factor(ws: &mut Workspace, theta: &Theta, sampling: Sampling) 
                 1.0 + (fxx + fyy) / 24.0 + (fxxxx + fyyyy) / 1920.0 + fxxyy / 576.0;
         }
     }
+}
+
+/// Fills `w_cur` with `keep / variance(μ)` of the model θ (signal-dependent noise only; with
+/// constant noise the passes use `keep` and the read variance). The model is rendered with
+/// [`dot_factor`] (exact for point sampling, the 4th-order box average otherwise: weights
+/// need far less than its 2e-4 accuracy).
+pub(crate) fn set_weights(
+    ws: &mut Workspace,
+    theta: &Theta,
+    sampling: Sampling,
+    noise: &NoiseModel,
+) {
+    if noise.is_constant() {
+        return;
+    }
+    dot_factor(ws, theta, sampling);
+    let (amp, bg) = (theta[IA], theta[IB]);
+    let n = ws.len();
+    for k in 0..n {
+        ws.w_cur[k] = ws.keep[k] / noise.variance(bg + amp * ws.tmp[k]);
+    }
+}
+
+/// The largest relative change of the weights if they were set at θ (0 with constant noise);
+/// leaves the new weights in `w_new`.
+pub(crate) fn weight_change(
+    ws: &mut Workspace,
+    theta: &Theta,
+    sampling: Sampling,
+    noise: &NoiseModel,
+) -> f64 {
+    if noise.is_constant() {
+        return 0.0;
+    }
+    dot_factor(ws, theta, sampling);
+    let (amp, bg) = (theta[IA], theta[IB]);
+    let mut worst: f64 = 0.0;
+    for k in 0..ws.len() {
+        let w = ws.keep[k] / noise.variance(bg + amp * ws.tmp[k]);
+        ws.w_new[k] = w;
+        if ws.w_cur[k] > 0.0 {
+            worst = worst.max((w / ws.w_cur[k] - 1.0).abs());
+        }
+    }
+    if worst.is_nan() { f64::INFINITY } else { worst }
 }
 
 #[cfg(test)]
@@ -1040,6 +1059,10 @@ mod tests {
         }
     }
 
+    fn truth_theta(g: &Gaussian2D) -> Theta {
+        theta_from_gaussian(g)
+    }
+
     #[test]
     fn moment_pass_equals_direct_pass() {
         let win = Window::new(6, 5, 9, 9);
@@ -1062,14 +1085,12 @@ mod tests {
             gain: 0.8,
             offset: 20.0,
         };
-        for k in 0..ws.len() {
-            ws.w_cur[k] = ws.keep[k] / 100.0;
-        }
+        set_weights(&mut ws, &truth_theta(&truth), Sampling::Point, &noise);
         let a = eval_point_moments(&mut ws, &theta, &noise);
         fill_phi_point(&mut ws, &theta);
         let b = eval_general(&mut ws, &theta, &noise);
-        assert!((a.cost_cur - b.cost_cur).abs() < 1e-9 * b.cost_cur);
-        assert!((a.cost_new - b.cost_new).abs() < 1e-9 * b.cost_new);
+        assert!((a.cost - b.cost).abs() < 1e-9 * b.cost);
+        assert!((a.ssr - b.ssr).abs() < 1e-9 * b.ssr);
         for i in 0..7 {
             assert!((a.grad[i] - b.grad[i]).abs() < 1e-9 * (1.0 + b.grad[i].abs()));
             for j in 0..7 {

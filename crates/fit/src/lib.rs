@@ -66,8 +66,8 @@ mod solver;
 mod start;
 pub mod study;
 
-pub use config::{Estimator, FitConfig, Neighbours, Solver};
-pub use dots::fit_dots;
+pub use config::{AUTO_SIGMA, Estimator, FitConfig, FitSampling, Neighbours, Solver};
+pub use dots::{fit_dots, refit_dots};
 pub use error::FitError;
 pub use fit::{Fitter, WindowSamples, fit_window};
 pub use noise::{

@@ -4,9 +4,9 @@
 
 use crate::eval::{
     IA, IB, IU, IV, IX, IY, Kind, Shape, Theta, Workspace, evaluate, fill_phi, gl_order,
-    normal_equations,
+    normal_equations, set_weights,
 };
-use crate::solver::{Bounds, Outcome, initial_weights};
+use crate::solver::{Bounds, Outcome};
 use bostrack_core::{FitStatus, NoiseModel};
 use bostrack_model::Sampling;
 use levenberg_marquardt::{LeastSquaresProblem, LevenbergMarquardt, TerminationReason};
@@ -188,8 +188,7 @@ fn lm_crate_inner(
         }
     };
     // Fisher matrix at the solution with the fast evaluation
-    initial_weights(ws, noise);
-    // (the Gram matrix is accumulated with the weights at theta)
+    set_weights(ws, &theta, sampling, noise);
     let pass = evaluate(ws, &theta, sampling, kind, noise);
     let (fisher, _) = normal_equations(kind, &theta, &pass);
     Outcome {

@@ -3,6 +3,7 @@
 
 use crate::eval::{
     IA, IT, IU, IV, IX, IY, Kind, Pass, Theta, Workspace, evaluate, gl_order, normal_equations,
+    set_weights, weight_change,
 };
 use bostrack_core::{FitStatus, NoiseModel};
 use bostrack_model::Sampling;
@@ -182,20 +183,20 @@ const LAMBDA_START: f64 = 1e-3;
 const LAMBDA_MIN: f64 = 1e-9;
 const LAMBDA_MAX: f64 = 1e10;
 
-/// Fills `w_cur` with `keep / read variance` (the weights before the first evaluation; with
-/// constant noise the passes use `keep` directly and the weights are not needed).
-pub(crate) fn initial_weights(ws: &mut Workspace, noise: &NoiseModel) {
-    if noise.is_constant() {
-        return;
-    }
-    let inv = 1.0 / noise.variance(f64::NEG_INFINITY);
-    let n = ws.len();
-    for k in 0..n {
-        ws.w_cur[k] = ws.keep[k] * inv;
-    }
-}
+/// Weights change beyond which the Fisher matrix is recomputed with the weights at the
+/// solution.
+const REWEIGHT: f64 = 0.02;
+/// Weights change beyond which the solve is repeated with the weights at its solution.
+const RESOLVE: f64 = 0.2;
 
-/// Levenberg-Marquardt from `theta0` (already projected into the bounds).
+/// Levenberg-Marquardt from `theta0` (already projected into the bounds), with the weights of
+/// the noise model fixed at the start's model (so that Gauss-Newton converges quadratically
+/// and a pass needs no division per pixel). With signal-dependent noise the weights are then
+/// checked at the solution: if one changed by more than 20 % the solve is repeated from there
+/// with the new weights (iteratively reweighted least squares, same fixed point); if by more
+/// than 2 %, only the Fisher matrix (the bound) is recomputed with them, since a weight error
+/// moves the estimate by a second-order amount only. `reweight = false`
+/// skips that for intermediate fits (a neighbour pass that is refitted from its solution).
 pub(crate) fn solve_fast(
     ws: &mut Workspace,
     theta0: Theta,
@@ -205,9 +206,11 @@ pub(crate) fn solve_fast(
     bounds: &Bounds,
     max_iterations: u32,
     tolerance: f64,
+    reweight: bool,
 ) -> Outcome {
     ws.gl_n = gl_order(theta0[IU].min(theta0[IV]).exp());
-    let out = lm_loop(
+    set_weights(ws, &theta0, sampling, noise);
+    let mut out = lm_loop(
         ws,
         theta0,
         kind,
@@ -217,6 +220,40 @@ pub(crate) fn solve_fast(
         max_iterations,
         tolerance,
     );
+    for _ in 0..3 {
+        if !reweight || !out.status.is_ok() {
+            break;
+        }
+        let change = weight_change(ws, &out.theta, sampling, noise);
+        if change <= REWEIGHT {
+            break;
+        }
+        std::mem::swap(&mut ws.w_cur, &mut ws.w_new);
+        if change <= RESOLVE {
+            // the estimate moves by a second-order amount only: keep it, but give the Fisher
+            // matrix (the bound) and the cost the weights at the solution
+            let pass = evaluate(ws, &out.theta, sampling, kind, noise);
+            if pass.finite {
+                out.fisher = normal_equations(kind, &out.theta, &pass).0;
+                out.ssr = pass.ssr;
+            }
+            break;
+        }
+        let again = lm_loop(
+            ws,
+            out.theta,
+            kind,
+            sampling,
+            noise,
+            bounds,
+            max_iterations.saturating_sub(out.iterations).max(1),
+            tolerance,
+        );
+        out = Outcome {
+            iterations: out.iterations + again.iterations,
+            ..again
+        };
+    }
     ws.gl_n = 0;
     out
 }
@@ -233,10 +270,8 @@ fn lm_loop(
 ) -> Outcome {
     let n = kind.n_free();
     let mut theta = theta0;
-    initial_weights(ws, noise);
     let mut pass: Pass = evaluate(ws, &theta, sampling, kind, noise);
-    std::mem::swap(&mut ws.w_cur, &mut ws.w_new);
-    let mut cost = pass.cost_new;
+    let mut cost = pass.cost;
     let (mut nm, mut g) = normal_equations(kind, &theta, &pass);
     let outcome = |theta: Theta, status, iterations, nm, ssr| Outcome {
         theta,
@@ -265,13 +300,34 @@ fn lm_loop(
         let clamped = bounds.project(&mut trial);
         kind.constrain(&mut trial);
         let finite = trial.iter().all(|v| v.is_finite());
+        // a Gauss-Newton step (λ small) shorter than the tolerance: take it and stop without
+        // evaluating the trial (the cost cannot rise measurably over a step of 1e-2 standard
+        // deviations, and what is left after it is of second order); the Fisher matrix is the
+        // one at θ, a hundredth of a standard deviation away
+        if finite
+            && !clamped
+            && lambda <= 1e-2
+            && bounds.inside(&trial)
+            && quad_form(&nm, &step, n) <= tol2
+        {
+            // residual sum of squares at the trial by the linearised model:
+            // Σ w (r - Jδ)² = cost - 2 gᵀδ + δᵀ N δ (the unweighted one scaled alike)
+            let gd: f64 = (0..n).map(|k| g[k] * step[k]).sum();
+            let predicted = (cost - 2.0 * gd + quad_form(&nm, &step, n)).max(0.0);
+            let ssr = if cost > 0.0 {
+                pass.ssr * predicted / cost
+            } else {
+                pass.ssr
+            };
+            return outcome(trial, FitStatus::Converged, it, nm, ssr);
+        }
         let accepted = if !finite || !bounds.inside(&trial) {
             left = finite;
             false
         } else {
             left = false;
             let p = evaluate(ws, &trial, sampling, kind, noise);
-            if p.finite && p.cost_cur <= cost {
+            if p.finite && p.cost <= cost {
                 // the step actually taken (after projection), in free coordinates
                 let mut taken = [0.0; 7];
                 for (k, &idx) in kind.free().iter().enumerate() {
@@ -280,9 +336,8 @@ fn lm_loop(
                 let m2 = quad_form(&nm, &taken, n);
                 let damped = lambda > 1.0;
                 theta = trial;
-                cost = p.cost_new;
+                cost = p.cost;
                 pass = p;
-                std::mem::swap(&mut ws.w_cur, &mut ws.w_new);
                 (nm, g) = normal_equations(kind, &theta, &pass);
                 lambda = (lambda * 0.1).max(LAMBDA_MIN);
                 if m2 <= tol2 && !damped {

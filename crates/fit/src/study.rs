@@ -10,7 +10,7 @@
 //! 7-parameter pixel-integrated model over its window (`bostrack_model::crlb`, the dot alone,
 //! saturated pixels left out), so `rms_over_bound` compares every method with the same bound.
 
-use crate::config::{Estimator, FitConfig, Neighbours, Solver};
+use crate::config::{Estimator, FitConfig, FitSampling, Neighbours, Solver};
 use crate::{FitError, fit_dots};
 use bostrack_core::{Gaussian2D, GridIndex, Image, ImageMeta, NoiseModel, Seed, Window};
 use bostrack_model::{ModelKind, Sampling, add_dot, crlb_masked};
@@ -237,18 +237,11 @@ impl Method {
                 "lsg/{}/{}/{}/{}",
                 c.solver.as_str(),
                 c.model.as_str(),
-                sampling_name(c.sampling),
+                c.sampling.as_str(),
                 neighbours_label(c)
             ),
             e => e.as_str().to_string(),
         }
-    }
-}
-
-fn sampling_name(s: Sampling) -> &'static str {
-    match s {
-        Sampling::Point => "point",
-        Sampling::Integrated => "integrated",
     }
 }
 
@@ -281,7 +274,13 @@ fn methods() -> Vec<Method> {
         },
         Method {
             cfg: FitConfig {
-                sampling: Sampling::Point,
+                sampling: FitSampling::Integrated,
+                ..base.clone()
+            },
+        },
+        Method {
+            cfg: FitConfig {
+                sampling: FitSampling::Point,
                 ..base.clone()
             },
         },
@@ -521,7 +520,7 @@ fn score(
         method: m.name(),
         estimator: c.estimator.as_str().to_string(),
         model: if lsg { c.model.as_str() } else { "-" }.to_string(),
-        sampling: sampling_name(c.sampling).to_string(),
+        sampling: c.sampling.as_str().to_string(),
         solver: if lsg { c.solver.as_str() } else { "-" }.to_string(),
         neighbours: neighbours_label(c),
         dots: r.scored.len(),

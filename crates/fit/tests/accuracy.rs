@@ -40,7 +40,7 @@ fn case(sx: f64, sy: f64, rho: f64, snr: f64, sampling: Sampling) -> AccuracyCas
         half: (2.5 * sx.max(sy)).ceil().max(4.0) as usize,
         render: sampling,
         fit: FitConfig {
-            sampling,
+            sampling: sampling.into(),
             ..Default::default()
         },
     }
@@ -87,7 +87,7 @@ fn point_sampling_is_biased_on_small_integrated_dots() {
         };
         let v = render(&g, w, Sampling::Integrated);
         let f = Fitter::new(&FitConfig {
-            sampling,
+            sampling: sampling.into(),
             ..Default::default()
         })
         .fit_samples(

@@ -1,14 +1,15 @@
 mod common;
 
 use bostrack_core::{FitStatus, Gaussian2D, NoiseModel, Window};
-use bostrack_fit::{FitConfig, Fitter, Solver};
+use bostrack_fit::{AUTO_SIGMA, FitConfig, FitSampling, Fitter, Solver};
 use bostrack_model::{ModelKind, Sampling, crlb_masked, render};
 use common::*;
+use rand::RngExt;
 
 fn cfg(model: ModelKind, sampling: Sampling, solver: Solver) -> FitConfig {
     FitConfig {
         model,
-        sampling,
+        sampling: sampling.into(),
         solver,
         ..Default::default()
     }
@@ -92,13 +93,15 @@ fn bound_in_record_equals_model_crate() {
             assert!(fit.status.is_ok());
             let keep = |x: i64, y: i64| !(x == 3 && y == 0);
             let b = crlb_masked(&fit.params, w, &noise, sampling, model, &keep).unwrap();
+            // the record's bound comes from the solver's last normal matrix: a step of at most
+            // `tolerance` (0.05 sd) from the solution, weights within 2 % of those there
             assert!(
-                (fit.crlb_x / b.std[0] - 1.0).abs() < 1e-6,
+                (fit.crlb_x / b.std[0] - 1.0).abs() < 2e-3,
                 "{model:?} {} vs {}",
                 fit.crlb_x,
                 b.std[0]
             );
-            assert!((fit.crlb_y / b.std[1] - 1.0).abs() < 1e-6);
+            assert!((fit.crlb_y / b.std[1] - 1.0).abs() < 2e-3);
         }
     }
 }
@@ -128,17 +131,88 @@ fn fast_and_lm_crate_agree() {
             let b = Fitter::new(&cfg(ModelKind::Elliptical, sampling, Solver::LmCrate))
                 .fit_samples(&samples(w, &v), [4.0, 4.0], None, &noise);
             assert!(a.status.is_ok() && b.status.is_ok(), "{a:?} {b:?}");
-            // both find the same minimum: differences far below the bound
+            // both find the same minimum: differences far below the bound (the fast solver
+            // stops within 0.05 sd and keeps weights within 2 % of those at its solution)
             assert!(
-                (a.params.x0 - b.params.x0).abs() < 0.01 * a.crlb_x,
+                (a.params.x0 - b.params.x0).abs() < 0.05 * a.crlb_x,
                 "{k}: {} vs {} (bound {})",
                 a.params.x0,
                 b.params.x0,
                 a.crlb_x
             );
-            assert!((a.params.y0 - b.params.y0).abs() < 0.01 * a.crlb_y);
+            assert!((a.params.y0 - b.params.y0).abs() < 0.05 * a.crlb_y);
             assert!((a.params.sigma_x - b.params.sigma_x).abs() < 1e-3);
             assert!((a.params.rho - b.params.rho).abs() < 1e-3);
         }
     }
+}
+
+/// `sampling = "auto"` fits dots with a conditional sigma of at least `AUTO_SIGMA` as the
+/// pixel-blurred Gaussian (covariance Σ + I/12): on noise-free pixel-integrated dots it must
+/// give the integrated fit's position to 1e-4 px (a hundredth of the bound at peak SNR 100)
+/// and its shape to 0.5 %, and below the threshold it is the integrated fit.
+#[test]
+fn auto_sampling_matches_integrated() {
+    let mut r = rng(41);
+    let (mut worst_pos, mut worst_sigma, mut worst_rho): (f64, f64, f64) = (0.0, 0.0, 0.0);
+    for &(sx, sy, rho) in &[
+        (1.0, 1.0, 0.0),
+        (1.05, 1.3, 0.2),
+        (1.6, 1.6, 0.0),
+        (1.6, 1.4, -0.5),
+        (2.0, 1.7, 0.55),
+        (3.0, 2.0, 0.3),
+        (0.7, 0.8, 0.1),
+    ] {
+        for _ in 0..8 {
+            let g = Gaussian2D {
+                x0: 6.0 + r.random_range(-0.5..0.5),
+                y0: 6.0 + r.random_range(-0.5..0.5),
+                amplitude: 1000.0,
+                sigma_x: sx,
+                sigma_y: sy,
+                rho,
+                background: 100.0,
+            };
+            let w = Window::new(0, 0, 13, 13);
+            let v = render(&g, w, Sampling::Integrated);
+            let fit = |s: FitSampling| {
+                let cfg = FitConfig {
+                    sampling: s,
+                    ..Default::default()
+                };
+                Fitter::new(&cfg).fit_samples(
+                    &samples(w, &v),
+                    [6.0, 6.0],
+                    None,
+                    &NoiseModel::read(10.0),
+                )
+            };
+            let (a, i) = (fit(FitSampling::Auto), fit(FitSampling::Integrated));
+            assert_eq!(a.status, FitStatus::Converged, "{a:?}");
+            assert_eq!(i.status, FitStatus::Converged, "{i:?}");
+            let dp = (a.params.x0 - i.params.x0)
+                .abs()
+                .max((a.params.y0 - i.params.y0).abs());
+            let ds = ((a.params.sigma_x / i.params.sigma_x) - 1.0)
+                .abs()
+                .max(((a.params.sigma_y / i.params.sigma_y) - 1.0).abs());
+            let dr = (a.params.rho - i.params.rho).abs();
+            let cond = sx.min(sy) * (1.0 - rho * rho).sqrt();
+            if cond < AUTO_SIGMA {
+                assert_eq!(a.params, i.params, "below AUTO_SIGMA auto is integrated");
+            }
+            // the bound from the blurred model's Fisher matrix is the integrated one's to 1 %
+            assert!((a.crlb_x / i.crlb_x - 1.0).abs() < 0.01, "{a:?} {i:?}");
+            worst_pos = worst_pos.max(dp);
+            worst_sigma = worst_sigma.max(ds);
+            worst_rho = worst_rho.max(dr);
+        }
+    }
+    println!(
+        "auto vs integrated: position {worst_pos:.2e} px, sigma {worst_sigma:.2e}, rho {worst_rho:.2e}"
+    );
+    assert!(worst_pos < 1e-4, "position {worst_pos}");
+    assert!(worst_sigma < 5e-3, "sigma {worst_sigma}");
+    assert!(worst_rho < 5e-3, "rho {worst_rho}");
 }

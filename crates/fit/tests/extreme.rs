@@ -133,7 +133,7 @@ fn zero_noise_recovers_parameters_to_1e_8() {
             let v = render(&g, w, sampling);
             let cfg = FitConfig {
                 model,
-                sampling,
+                sampling: sampling.into(),
                 ..Default::default()
             };
             let f = Fitter::new(&cfg).fit_samples(

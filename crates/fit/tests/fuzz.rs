@@ -2,8 +2,8 @@
 //! starts) never panic and never give an unflagged NaN, for every estimator and solver.
 
 use bostrack_core::{DotFlags, NoiseModel, Window};
-use bostrack_fit::{Estimator, FitConfig, Fitter, Solver, WindowSamples};
-use bostrack_model::{ModelKind, Sampling};
+use bostrack_fit::{Estimator, FitConfig, FitSampling, Fitter, Solver, WindowSamples};
+use bostrack_model::ModelKind;
 use proptest::prelude::*;
 
 fn value() -> impl Strategy<Value = f64> {
@@ -43,7 +43,7 @@ proptest! {
             estimator,
             solver,
             model: [ModelKind::Elliptical, ModelKind::AxisAligned, ModelKind::Circular][model],
-            sampling: if point { Sampling::Point } else { Sampling::Integrated },
+            sampling: if point { FitSampling::Point } else { FitSampling::Integrated },
             ..Default::default()
         };
         let keep: Vec<bool> = (0..w * h).map(|k| mask_every == 0 || k % (mask_every + 1) != 0).collect();

@@ -152,8 +152,10 @@ pub(crate) const SECTIONS: &[SectionDoc] = &[
             ),
             key(
                 "sampling",
-                "\"integrated\" (the model's mean over each pixel, what a camera records) or \"point\"\n\
-                 (its value at the pixel centre).",
+                "\"auto\" (pixel-integrated; dots wider than 1 px evaluated as the pixel-blurred\n\
+                 Gaussian, 4x faster and equal to 1e-4 px), \"integrated\" (the model's mean over\n\
+                 each pixel, what a camera records, for every dot) or \"point\" (its value at the\n\
+                 pixel centre).",
             ),
             key(
                 "estimator",
@@ -171,8 +173,8 @@ pub(crate) const SECTIONS: &[SectionDoc] = &[
             ),
             key(
                 "tolerance",
-                "Converged when the last step is below this many standard deviations of the\n\
-                 parameters.",
+                "Converged when the next step is below this many standard deviations of the\n\
+                 parameters (the step is taken).",
             ),
             key(
                 "neighbours",

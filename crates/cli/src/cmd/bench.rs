@@ -335,8 +335,11 @@ fn method_label(r: &StudyRow) -> String {
     if r.model != d.model.as_str() {
         diffs.push(r.model.replace('_', "-"));
     }
-    if r.sampling != "integrated" {
-        diffs.push(format!("{}-sampled", r.sampling));
+    if r.sampling != d.sampling.as_str() {
+        diffs.push(match r.sampling.as_str() {
+            "point" => "point-sampled".to_string(),
+            s => format!("{s} (pixel-integrated for every dot)"),
+        });
     }
     if r.neighbours != format!("subtract{}", d.neighbour_passes) {
         diffs.push(match r.neighbours.strip_prefix("subtract") {
@@ -345,7 +348,7 @@ fn method_label(r: &StudyRow) -> String {
         });
     }
     if diffs.is_empty() {
-        "LSG default (fast, elliptical, integrated, 2 passes)".to_string()
+        "LSG default (fast, elliptical, auto sampling, 2 passes)".to_string()
     } else {
         format!("LSG, {}", diffs.join(", "))
     }

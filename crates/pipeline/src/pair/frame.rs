@@ -29,6 +29,7 @@ pub(crate) fn track_fit_match_timed(
     img: &Image,
     path: &Path,
     mut times: Option<&mut StageTimes>,
+    no_flow: bool,
 ) -> Result<Matched, PipelineError> {
     let mut sw = Stopwatch::start();
     let (w, h) = ctx.size;
@@ -50,21 +51,7 @@ pub(crate) fn track_fit_match_timed(
     if let Some(t) = times.as_deref_mut() {
         t.push("detect", sw.lap());
     }
-    let fits =
-        bostrack_fit::fit_dots(img, mask, &tracked.seeds, &plan.fit, &ctx.noise).map_err(|e| {
-            PipelineError::Fit {
-                path: path.to_path_buf(),
-                source: e,
-            }
-        })?;
-    if let Some(t) = times.as_deref_mut() {
-        t.push("fit", sw.lap());
-    }
-
-    // kd-tree settings: radius = search_radius x spacing; the predictor starts from the median
-    // displacement of the tracked dots (track keeps the reference's seed order), so a camera
-    // motion larger than the radius does not flag every index pair
-    let spacing = ctx.detection.spacing;
+    // the median displacement of the tracked dots (track keeps the reference's seed order)
     let found = |f: &DotFlags| !f.contains(DotFlags::MISSING);
     let init = median2(
         ctx.detection
@@ -74,6 +61,37 @@ pub(crate) fn track_fit_match_timed(
             .filter(|(r, g)| found(&r.flags) && found(&g.flags))
             .map(|(r, g)| [g.centre[0] - r.centre[0], g.centre[1] - r.centre[1]]),
     );
+    let fits = if no_flow {
+        // a no-flow image is the reference moved by the camera's common shift: one pass from
+        // the reference fits moved by the tracked dots' median displacement (neighbours
+        // subtracted from those), instead of moment estimates and two passes
+        let [sx, sy] = init.map(|v| v.unwrap_or(0.0));
+        let prior: Vec<_> = ctx
+            .fits
+            .iter()
+            .map(|f| {
+                let mut p = *f;
+                p.params.x0 += sx;
+                p.params.y0 += sy;
+                p
+            })
+            .collect();
+        bostrack_fit::refit_dots(img, mask, &tracked.seeds, &plan.fit, &ctx.noise, &prior)
+    } else {
+        bostrack_fit::fit_dots(img, mask, &tracked.seeds, &plan.fit, &ctx.noise)
+    }
+    .map_err(|e| PipelineError::Fit {
+        path: path.to_path_buf(),
+        source: e,
+    })?;
+    if let Some(t) = times.as_deref_mut() {
+        t.push("fit", sw.lap());
+    }
+
+    // kd-tree settings: radius = search_radius x spacing; the predictor starts from the median
+    // displacement of the tracked dots (track keeps the reference's seed order), so a camera
+    // motion larger than the radius does not flag every index pair
+    let spacing = ctx.detection.spacing;
     let initial_displacement = match init {
         [Some(x), Some(y)] => Some([x, y]),
         _ => None,
@@ -106,7 +124,7 @@ pub(crate) fn track_fit_match(
     img: &Image,
     path: &Path,
 ) -> Result<Matched, PipelineError> {
-    track_fit_match_timed(ctx, plan, img, path, None)
+    track_fit_match_timed(ctx, plan, img, path, None, true)
 }
 
 /// Processes one gradient frame: reads it, then [`process_image`]. `plan` must be the plan
@@ -142,7 +160,7 @@ pub fn process_image(
     } else {
         frame.to_path_buf()
     };
-    let m = track_fit_match_timed(ctx, plan, img, &path, Some(&mut times))?;
+    let m = track_fit_match_timed(ctx, plan, img, &path, Some(&mut times), false)?;
     let mut sw = Stopwatch::start();
     let n = ctx.fits.len();
     let both =

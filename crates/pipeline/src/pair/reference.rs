@@ -8,8 +8,7 @@ use crate::plan::{Plan, ReferenceImage};
 use bostrack_core::{DotFit, DotFlags, Image, Mask, NoiseModel};
 use bostrack_detect::Detection;
 use bostrack_displacement::{ArShapes, ReferenceStats};
-use bostrack_fit::{Estimator, FitConfig};
-use bostrack_model::Sampling;
+use bostrack_fit::{Estimator, FitConfig, FitSampling};
 use bostrack_uncertainty::{CommonMode, StackConfig, reference_stack};
 use rayon::prelude::*;
 use serde_json::json;
@@ -85,7 +84,7 @@ pub struct ReferenceContext {
 /// documentation): pixel-blurred for least-squares fits of the pixel-integrated model, the
 /// fitted shapes otherwise.
 pub(crate) fn ar_shapes_for(fit: &FitConfig) -> ArShapes {
-    if fit.estimator == Estimator::Lsg && fit.sampling == Sampling::Integrated {
+    if fit.estimator == Estimator::Lsg && fit.sampling != FitSampling::Point {
         ArShapes::PixelBlurred
     } else {
         ArShapes::Fitted
