@@ -5,7 +5,7 @@
 
 use bostrack_core::{Gaussian2D, NoiseModel, Window};
 use bostrack_fit::{Estimator, FitConfig, FitSampling, Fitter, Solver, WindowSamples};
-use bostrack_model::{ModelKind, Sampling, render};
+use bostrack_model::{ModelKind, render};
 use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
 use rand_distr::StandardNormal;

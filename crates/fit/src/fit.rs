@@ -278,7 +278,9 @@ impl Fitter {
     /// [`FitSampling::Auto`]: the pixel-blurred point model while the dot is wide enough, the
     /// pixel-integrated model from where it is not.
     fn solve_auto(&mut self, theta0: Theta, bounds: &Bounds, noise: &NoiseModel) -> Outcome {
-        if conditional_sigma(&theta0) < AUTO_SIGMA {
+        // the start (moments of a window that may truncate the dot) can under-state sigma: the
+        // decision is taken at the solution, with a lower bar for trying the fast model
+        if conditional_sigma(&theta0) < 0.7 * AUTO_SIGMA {
             return self.solve_with(theta0, bounds, noise, Sampling::Integrated);
         }
         let mut blurred = pixel_blur(&theta0);
@@ -286,8 +288,7 @@ impl Fitter {
         let out = self.solve_with(blurred, bounds, noise, Sampling::Point);
         let sharp = pixel_unblur(&out.theta);
         match sharp {
-            // hysteresis: a start just above the threshold may end just below it
-            Some(t) if conditional_sigma(&t) >= 0.9 * AUTO_SIGMA => Outcome { theta: t, ..out },
+            Some(t) if conditional_sigma(&t) >= AUTO_SIGMA => Outcome { theta: t, ..out },
             _ if !out.status.is_ok() => Outcome {
                 theta: sharp.unwrap_or([f64::NAN; 7]),
                 ..out

@@ -163,6 +163,8 @@ fn auto_sampling_matches_integrated() {
         (2.0, 1.7, 0.55),
         (3.0, 2.0, 0.3),
         (0.7, 0.8, 0.1),
+        (0.97, 1.2, 0.0),
+        (0.9, 0.9, 0.0),
     ] {
         for _ in 0..8 {
             let g = Gaussian2D {
@@ -200,7 +202,12 @@ fn auto_sampling_matches_integrated() {
             let dr = (a.params.rho - i.params.rho).abs();
             let cond = sx.min(sy) * (1.0 - rho * rho).sqrt();
             if cond < AUTO_SIGMA {
-                assert_eq!(a.params, i.params, "below AUTO_SIGMA auto is integrated");
+                // below AUTO_SIGMA auto ends with the integrated model (from another start):
+                // the same minimum, within the convergence tolerance
+                assert!(
+                    dp < 0.05 * i.crlb_x.min(i.crlb_y) && ds < 1e-3,
+                    "below AUTO_SIGMA: {a:?} vs {i:?}"
+                );
             }
             // the bound from the blurred model's Fisher matrix is the integrated one's to 1 %
             assert!((a.crlb_x / i.crlb_x - 1.0).abs() < 0.01, "{a:?} {i:?}");
