@@ -196,24 +196,45 @@ impl ReferenceContext {
         let quantities = plan.config.output.quantities;
         let mask_ref = mask.as_ref();
 
-        // noise model: the stack when there is one (>= 2 images), else the reference image
-        let (noise, noise_source) = if stack.len() >= 2 {
-            let n = bostrack_fit::noise_from_stack(&stack, mask_ref).map_err(|e| {
-                PipelineError::Fit {
-                    path: image_path(&stack[0], "stack"),
-                    source: e,
-                }
-            })?;
-            (n, "stack")
-        } else {
-            let n = bostrack_fit::estimate_noise(&reference, mask_ref).map_err(|e| {
-                PipelineError::Fit {
+        // the noise model (the stack when there is one, >= 2 images, else the reference image)
+        // and the detection are independent: computed concurrently (each stage's own wall
+        // time is reported)
+        fn timed<T>(
+            f: impl FnOnce() -> Result<T, PipelineError>,
+        ) -> Result<(T, f64), PipelineError> {
+            let t = std::time::Instant::now();
+            f().map(|v| (v, t.elapsed().as_secs_f64()))
+        }
+        let noise_job = || -> Result<(NoiseModel, &'static str), PipelineError> {
+            if stack.len() >= 2 {
+                let n = bostrack_fit::noise_from_stack(&stack, mask_ref).map_err(|e| {
+                    PipelineError::Fit {
+                        path: image_path(&stack[0], "stack"),
+                        source: e,
+                    }
+                })?;
+                Ok((n, "stack"))
+            } else {
+                let n = bostrack_fit::estimate_noise(&reference, mask_ref).map_err(|e| {
+                    PipelineError::Fit {
+                        path: source.clone(),
+                        source: e,
+                    }
+                })?;
+                Ok((n, "reference image"))
+            }
+        };
+        let detect_job = || {
+            bostrack_detect::detect(&reference, mask_ref, &plan.detect).map_err(|e| {
+                PipelineError::Detect {
                     path: source.clone(),
                     source: e,
                 }
-            })?;
-            (n, "reference image")
+            })
         };
+        let (noise_result, detect_result) = rayon::join(|| timed(noise_job), || timed(detect_job));
+        let (((noise, noise_source), noise_time), (detection, detect_time)) =
+            (noise_result?, detect_result?);
         let reference_noise = if plan.reference == ReferenceImage::StackMean && !stack.is_empty() {
             let k = stack.len() as f64;
             NoiseModel {
@@ -224,16 +245,9 @@ impl ReferenceContext {
         } else {
             noise
         };
-        times.push("noise", sw.lap());
-
-        let detection =
-            bostrack_detect::detect(&reference, mask_ref, &plan.detect).map_err(|e| {
-                PipelineError::Detect {
-                    path: source.clone(),
-                    source: e,
-                }
-            })?;
-        times.push("detect", sw.lap());
+        sw.lap();
+        times.push("noise", noise_time);
+        times.push("detect", detect_time);
         let fits = bostrack_fit::fit_dots(
             &reference,
             mask_ref,
