@@ -1,8 +1,9 @@
-//! Matching fitted dots ([`DotFit`] records): by grid index first, kd-tree as fall-back and as
-//! an independent check of the indices.
+//! Matching fitted dots ([`DotFit`] records): by grid index first, nearest neighbours as
+//! fall-back and as a check of the index pairs around the locally predicted displacement.
 
 use crate::error::MatchError;
-use crate::nearest::{NearestConfig, iterate, local_predictor, mutual_pass_sets};
+use crate::nearest::{NearestConfig, iterate, mutual_pass_sets};
+use crate::points::{PointSet, median};
 use bostrack_core::{DotFit, DotFlags, GridIndex};
 use std::collections::HashMap;
 
@@ -11,16 +12,39 @@ use std::collections::HashMap;
 pub enum MatchMode {
     /// The primary path when detection kept the reference grid indices in the gradient image
     /// (docs/CONVENTIONS.md): records with the same [`GridIndex`] are a pair, whatever their
-    /// fit status. Usable records (fit status ok, finite position) left without a partner are
-    /// matched by the kd-tree among themselves. Every index pair of usable records is checked
-    /// against an independent kd-tree matching of all usable records (which uses no index
-    /// information); a disagreement flags [`DotFlags::GRID_MISMATCH`]. When the whole image
-    /// moved by more than about 0.4 spacing, set [`NearestConfig::initial_displacement`] or
-    /// every index pair is flagged.
+    /// fit status (the first record wins for a duplicated index). Usable records (fit status
+    /// ok, finite position) left without a partner are matched among themselves by mutual
+    /// nearest neighbours around the displacement predicted from the trusted index pairs
+    /// nearby.
+    ///
+    /// **Index-pair check.** Every index pair of usable records `(r_i, g_j)` is checked against
+    /// the geometry, relative to a predictor (the issue's "local median displacement of
+    /// matched neighbours"):
+    ///
+    /// 1. `d̂_i` = component-wise median of `g − r` over the usable index pairs among the
+    ///    lattice neighbours of `i` (reference dots with grid index `(a ± 1, b ± 1)`, the pair
+    ///    itself left out; widened to `± 2` and `± 3` until at least
+    ///    `⌈predictor_neighbours / 2⌉` pairs are found; [`NearestConfig::initial_displacement`]
+    ///    or zero where there is none). The neighbourhood comes from the reference indices, not
+    ///    from the gradient indices under test.
+    /// 2. Mutual nearest neighbours within [`NearestConfig::radius`] between the predicted
+    ///    positions `r + d̂` of all usable reference dots and all usable gradient dots. The pair
+    ///    is flagged [`DotFlags::GRID_MISMATCH`] when the mutual partner of `r_i` is another
+    ///    gradient dot, or `g_j` is the mutual partner of another reference dot.
+    /// 3. Flagged pairs are left out of the predictors and the check is run again, until the
+    ///    flags no longer change (at most `1 + iterations` passes, [`Matches::passes`]).
+    ///
+    /// So a smooth displacement field is followed whatever its size (a bump of 0.6 spacing or
+    /// a uniform shift of 0.7 spacing raises no flag), while an index pair that disagrees with
+    /// its neighbours is flagged: isolated wrong pairs and wrongly indexed patches of up to
+    /// about 3 x 3 dots completely, larger patches along their border (inside, the neighbours
+    /// agree with the wrong pairs). An index error shared by a whole region cannot be told
+    /// from a displacement one lattice step larger: see the crate documentation ("What the
+    /// index check cannot see").
     #[default]
     GridIndex,
-    /// kd-tree only (mutual nearest neighbours with the local-median predictor, see
-    /// [`crate::match_points`]) over the usable records. With `compare_indices`, a pair whose
+    /// Nearest neighbours only (mutual nearest neighbours with the local-median predictor,
+    /// see [`crate::match_points`]) over the usable records; no index information is used. With `compare_indices`, a pair whose
     /// grid indices differ is flagged [`DotFlags::GRID_MISMATCH`].
     Nearest { compare_indices: bool },
 }
@@ -33,7 +57,7 @@ pub struct MatchConfig {
 }
 
 impl MatchConfig {
-    /// Grid-index mode with the kd-tree settings of [`NearestConfig::for_spacing`].
+    /// Grid-index mode with the nearest-neighbour settings of [`NearestConfig::for_spacing`].
     pub fn for_spacing(spacing: f64) -> Self {
         MatchConfig {
             mode: MatchMode::GridIndex,
@@ -47,7 +71,7 @@ impl MatchConfig {
 pub enum MatchedBy {
     /// Same grid index in both images.
     GridIndex,
-    /// Mutual nearest neighbours (kd-tree).
+    /// Mutual nearest neighbours (no index partner, or [`MatchMode::Nearest`]).
     Nearest,
 }
 
@@ -71,7 +95,8 @@ pub struct Matches {
     pub unmatched_reference: Vec<usize>,
     /// Gradient records without a partner, ascending.
     pub unmatched_gradient: Vec<usize>,
-    /// Passes of the kd-tree matching (grid-index mode: of the independent check).
+    /// Passes of the nearest-neighbour matching (grid-index mode: of the index-pair check, 0
+    /// when there was no usable index pair to check).
     pub passes: usize,
 }
 
@@ -85,7 +110,7 @@ impl Matches {
     }
 }
 
-/// Whether a record takes part in kd-tree matching: fit usable and position finite.
+/// Whether a record takes part in nearest-neighbour matching: fit usable and position finite.
 fn usable(d: &DotFit) -> bool {
     d.status.is_ok() && d.params.x0.is_finite() && d.params.y0.is_finite()
 }
@@ -152,7 +177,314 @@ pub fn match_dots(
     })
 }
 
-/// Grid-index mode; pushes the pairs and returns the passes of the independent check.
+/// Lookup of the reference record by grid index (the first record wins for a duplicated
+/// index): a dense table over the box of the reference indices when that box is compact (a
+/// detected lattice patch), a hash map otherwise.
+enum IndexTable {
+    Dense {
+        i0: i64,
+        j0: i64,
+        ni: i64,
+        nj: i64,
+        slot: Vec<u32>,
+    },
+    Map(HashMap<GridIndex, usize>),
+}
+
+impl IndexTable {
+    fn new(reference: &[DotFit]) -> Self {
+        let n = reference.len();
+        let (mut i0, mut i1, mut j0, mut j1) = (i64::MAX, i64::MIN, i64::MAX, i64::MIN);
+        for d in reference {
+            i0 = i0.min(d.index.i as i64);
+            i1 = i1.max(d.index.i as i64);
+            j0 = j0.min(d.index.j as i64);
+            j1 = j1.max(d.index.j as i64);
+        }
+        let (ni, nj) = (i1 - i0 + 1, j1 - j0 + 1);
+        // i32 ranges: ni, nj <= 2^32, the product fits an i64 only after the size check
+        if n > 0 && n < u32::MAX as usize && ni <= (4 * n as i64 + 64) / nj.max(1) {
+            let mut slot = vec![u32::MAX; (ni * nj) as usize];
+            for (k, d) in reference.iter().enumerate() {
+                let s =
+                    &mut slot[((d.index.j as i64 - j0) * ni + (d.index.i as i64 - i0)) as usize];
+                if *s == u32::MAX {
+                    *s = k as u32;
+                }
+            }
+            return IndexTable::Dense {
+                i0,
+                j0,
+                ni,
+                nj,
+                slot,
+            };
+        }
+        let mut map = HashMap::with_capacity(n);
+        for (k, d) in reference.iter().enumerate() {
+            map.entry(d.index).or_insert(k);
+        }
+        IndexTable::Map(map)
+    }
+
+    /// The slots of the 8 indices around `g` when they all lie inside a dense table (the
+    /// common case, answered without checks per neighbour); `u32::MAX`: no record.
+    #[inline]
+    fn ring1(&self, g: GridIndex) -> Option<[u32; 8]> {
+        let IndexTable::Dense {
+            i0,
+            j0,
+            ni,
+            nj,
+            slot,
+        } = self
+        else {
+            return None;
+        };
+        let (x, y) = (g.i as i64 - i0, g.j as i64 - j0);
+        if x < 1 || y < 1 || x + 1 >= *ni || y + 1 >= *nj {
+            return None;
+        }
+        let c = (y * ni + x) as usize;
+        let w = *ni as usize;
+        let (up, down) = (&slot[c - w - 1..c - w + 2], &slot[c + w - 1..c + w + 2]);
+        Some([
+            up[0],
+            up[1],
+            up[2],
+            slot[c - 1],
+            slot[c + 1],
+            down[0],
+            down[1],
+            down[2],
+        ])
+    }
+
+    /// Call `f` with the record of every index at Chebyshev distance `w` from `g` (those
+    /// present).
+    #[inline]
+    fn ring(&self, g: GridIndex, w: i64, mut f: impl FnMut(usize)) {
+        let (a, b) = (g.i as i64, g.j as i64);
+        let mut at = |da: i64, db: i64| match self {
+            IndexTable::Dense {
+                i0,
+                j0,
+                ni,
+                nj,
+                slot,
+            } => {
+                let (x, y) = (a + da - i0, b + db - j0);
+                if x >= 0 && y >= 0 && x < *ni && y < *nj {
+                    let s = slot[(y * ni + x) as usize];
+                    if s != u32::MAX {
+                        f(s as usize);
+                    }
+                }
+            }
+            IndexTable::Map(m) => {
+                if let (Ok(x), Ok(y)) = (i32::try_from(a + da), i32::try_from(b + db))
+                    && let Some(&s) = m.get(&GridIndex::new(x, y))
+                {
+                    f(s);
+                }
+            }
+        };
+        for da in -w..=w {
+            at(da, -w);
+            at(da, w);
+        }
+        for db in 1 - w..w {
+            at(-w, db);
+            at(w, db);
+        }
+    }
+
+    #[inline]
+    fn get(&self, g: GridIndex) -> Option<usize> {
+        match self {
+            IndexTable::Dense {
+                i0,
+                j0,
+                ni,
+                nj,
+                slot,
+            } => {
+                let (a, b) = (g.i as i64 - i0, g.j as i64 - j0);
+                if a < 0 || b < 0 || a >= *ni || b >= *nj {
+                    return None;
+                }
+                let s = slot[(b * ni + a) as usize];
+                (s != u32::MAX).then_some(s as usize)
+            }
+            IndexTable::Map(m) => m.get(&g).copied(),
+        }
+    }
+}
+
+/// Widest ring of lattice neighbours the index predictor looks at.
+const MAX_RING: i64 = 3;
+
+/// The predictor of the index-pair check. For reference dot `i` with grid index `(a, b)`: the
+/// component-wise median displacement of the usable index pairs among its lattice neighbours
+/// (reference dots with index `(a ± w, b ± w)`, the dot itself left out), ring by ring from
+/// `w = 1` until at least `need` pairs are found or `w` = [`MAX_RING`]; pairs flagged by the
+/// previous pass are skipped. The neighbourhoods come from the reference indices (detection
+/// on the reference image), not from the gradient indices under test, and cost no search.
+struct IndexPredictor<'a> {
+    reference: &'a [DotFit],
+    table: &'a IndexTable,
+    /// `g - r` of every usable index pair (`None` elsewhere).
+    disp: Vec<Option<[f64; 2]>>,
+    need: usize,
+    fallback: [f64; 2],
+}
+
+impl<'a> IndexPredictor<'a> {
+    fn new(
+        reference: &'a [DotFit],
+        table: &'a IndexTable,
+        ref_pos: &[[f64; 2]],
+        grad_pos: &[[f64; 2]],
+        paired: &[Option<usize>],
+        predictor_neighbours: usize,
+        fallback: [f64; 2],
+    ) -> Self {
+        let disp = (0..reference.len())
+            .map(|i| {
+                paired[i].map(|j| {
+                    [
+                        grad_pos[j][0] - ref_pos[i][0],
+                        grad_pos[j][1] - ref_pos[i][1],
+                    ]
+                })
+            })
+            .collect();
+        IndexPredictor {
+            reference,
+            table,
+            disp,
+            need: predictor_neighbours.div_ceil(2).max(1),
+            fallback,
+        }
+    }
+
+    /// Predicted displacement of reference dot `i`, skipping `excluded` pairs; `fallback`
+    /// when no neighbour qualifies.
+    fn predict(&self, i: usize, excluded: &[bool]) -> [f64; 2] {
+        let g = self.reference[i].index;
+        // fast path: the 8 lattice neighbours, enough of them usable
+        if let Some(ring) = self.table.ring1(g) {
+            let (mut xs, mut ys) = ([0.0; 8], [0.0; 8]);
+            let mut n = 0;
+            for m in ring {
+                let m = m as usize;
+                if m < self.disp.len()
+                    && m != i
+                    && !excluded[m]
+                    && let Some(d) = self.disp[m]
+                {
+                    xs[n] = d[0];
+                    ys[n] = d[1];
+                    n += 1;
+                }
+            }
+            if n >= self.need {
+                return [median(&mut xs[..n]), median(&mut ys[..n])];
+            }
+        }
+        let (mut xs, mut ys) = (Vec::with_capacity(48), Vec::with_capacity(48));
+        for w in 1..=MAX_RING {
+            self.table.ring(g, w, |m| {
+                if m != i
+                    && !excluded[m]
+                    && let Some(d) = self.disp[m]
+                {
+                    xs.push(d[0]);
+                    ys.push(d[1]);
+                }
+            });
+            if xs.len() >= self.need {
+                break;
+            }
+        }
+        if xs.is_empty() {
+            self.fallback
+        } else {
+            [median(&mut xs), median(&mut ys)]
+        }
+    }
+}
+
+/// One pass of the index-pair check with predicted displacements `pred`: which usable index
+/// pairs (`paired[i] = Some(j)`) disagree with the mutual nearest neighbours (within `r2`)
+/// between predicted reference positions `r + pred` and the usable gradient dots.
+///
+/// Same result as a full mutual-nearest-neighbour pass (pair `i` disagrees when the mutual
+/// partner of `i` is another dot, or `j` is the mutual partner of another reference dot),
+/// but the backward queries (nearest predicted reference position to a gradient dot) are
+/// only run where a disagreement is possible: where the nearest gradient dot to `r_i + pred_i`
+/// is not `j`, or where `j` is the nearest gradient dot of another reference dot too.
+fn index_pair_check(
+    ref_pos: &[[f64; 2]],
+    grad_pos: &[[f64; 2]],
+    use_ref: &[bool],
+    grad_set: &PointSet,
+    paired: &[Option<usize>],
+    pred: &[[f64; 2]],
+    r2: f64,
+) -> Vec<bool> {
+    let n = ref_pos.len();
+    let predicted: Vec<[f64; 2]> = (0..n)
+        .map(|i| [ref_pos[i][0] + pred[i][0], ref_pos[i][1] + pred[i][1]])
+        .collect();
+    // forward: nearest usable gradient dot within the radius
+    let forward: Vec<Option<usize>> = (0..n)
+        .map(|i| {
+            if !use_ref[i] {
+                return None;
+            }
+            grad_set
+                .nearest(&predicted[i])
+                .and_then(|(k, d2)| (d2 <= r2).then_some(k))
+        })
+        .collect();
+    let mut hits = vec![0u32; grad_pos.len()];
+    for k in forward.iter().flatten() {
+        hits[*k] = hits[*k].saturating_add(1);
+    }
+    // backward: nearest predicted position of a usable reference dot, built on first need
+    let mut pred_set: Option<PointSet> = None;
+    let mut backward = |g: &[f64; 2]| -> Option<usize> {
+        pred_set
+            .get_or_insert_with(|| PointSet::new(&predicted, |i| use_ref[i]))
+            .nearest(g)
+            .map(|(m, _)| m)
+    };
+    (0..n)
+        .map(|i| {
+            let Some(j) = paired[i] else { return false };
+            let own = forward[i] == Some(j);
+            // the mutual partner of i is another dot k
+            if let Some(k) = forward[i]
+                && k != j
+                && backward(&grad_pos[k]) == Some(i)
+            {
+                return true;
+            }
+            // j is the mutual partner of another reference dot m
+            if hits[j] > u32::from(own)
+                && let Some(m) = backward(&grad_pos[j])
+                && m != i
+                && forward[m] == Some(j)
+            {
+                return true;
+            }
+            false
+        })
+        .collect()
+}
+
+/// Grid-index mode; pushes the pairs and returns the passes of the index-pair check.
 fn by_grid_index(
     reference: &[DotFit],
     gradient: &[DotFit],
@@ -164,14 +496,11 @@ fn by_grid_index(
     pairs: &mut Vec<Pair>,
 ) -> usize {
     // 1. pairs by index (first occurrence of a duplicated index wins)
-    let mut ref_map: HashMap<GridIndex, usize> = HashMap::with_capacity(reference.len());
-    for (i, d) in reference.iter().enumerate() {
-        ref_map.entry(d.index).or_insert(i);
-    }
+    let table = IndexTable::new(reference);
     let mut ref_partner: Vec<Option<usize>> = vec![None; reference.len()];
     let mut grad_taken = vec![false; gradient.len()];
     for (j, d) in gradient.iter().enumerate() {
-        if let Some(&i) = ref_map.get(&d.index)
+        if let Some(i) = table.get(d.index)
             && ref_partner[i].is_none()
         {
             ref_partner[i] = Some(j);
@@ -179,41 +508,65 @@ fn by_grid_index(
         }
     }
 
-    // 2. independent kd-tree matching of all usable records: it must not borrow anything from
-    //    the indices, or a whole image indexed with an offset would go unnoticed
+    // 2. check every usable index pair against a mutual-nearest-neighbour matching of all
+    //    usable records around the displacement predicted by the neighbouring index pairs
     let init = cfg.nearest.initial_displacement.unwrap_or([0.0, 0.0]);
-    let (kd, passes) = iterate(ref_pos, grad_pos, use_ref, use_grad, init, &cfg.nearest);
-    let mut kd_inverse: Vec<Option<usize>> = vec![None; gradient.len()];
-    for (i, p) in kd.iter().enumerate() {
-        if let Some(j) = *p {
-            kd_inverse[j] = Some(i);
-        }
-    }
-
-    // 3. check the index pairs against it
-    let mut trusted: Vec<Option<usize>> = vec![None; reference.len()];
-    for (i, p) in ref_partner.iter().enumerate() {
-        let Some(j) = *p else { continue };
-        let mut flags = DotFlags::NONE;
-        if use_ref[i] && use_grad[j] {
-            let ref_disagrees = kd[i].is_some_and(|k| k != j);
-            let grad_disagrees = kd_inverse[j].is_some_and(|k| k != i);
-            if ref_disagrees || grad_disagrees {
-                flags.insert(DotFlags::GRID_MISMATCH);
-            } else {
-                trusted[i] = Some(j);
+    let paired: Vec<Option<usize>> = (0..reference.len())
+        .map(|i| ref_partner[i].filter(|&j| use_ref[i] && use_grad[j]))
+        .collect();
+    let predictor = IndexPredictor::new(
+        reference,
+        &table,
+        ref_pos,
+        grad_pos,
+        &paired,
+        cfg.nearest.predictor_neighbours,
+        init,
+    );
+    let predict_all = |want: &[bool], excluded: &[bool]| -> Vec<[f64; 2]> {
+        (0..want.len())
+            .map(|i| {
+                if want[i] {
+                    predictor.predict(i, excluded)
+                } else {
+                    init
+                }
+            })
+            .collect()
+    };
+    let r2 = cfg.nearest.radius * cfg.nearest.radius;
+    let mut flagged = vec![false; reference.len()];
+    let mut passes = 0;
+    if paired.iter().any(Option::is_some) {
+        let grad_set = PointSet::new(grad_pos, |j| use_grad[j]);
+        loop {
+            let pred = predict_all(use_ref, &flagged);
+            let next = index_pair_check(ref_pos, grad_pos, use_ref, &grad_set, &paired, &pred, r2);
+            passes += 1;
+            // the next pass would predict from the same pairs: nothing can change
+            let settled = next == flagged;
+            flagged = next;
+            if settled || passes > cfg.nearest.iterations {
+                break;
             }
         }
+    }
+    for (i, p) in ref_partner.iter().enumerate() {
+        let Some(j) = *p else { continue };
         pairs.push(Pair {
             reference: i,
             gradient: j,
             by: MatchedBy::GridIndex,
-            flags,
+            flags: if flagged[i] {
+                DotFlags::GRID_MISMATCH
+            } else {
+                DotFlags::NONE
+            },
         });
     }
 
-    // 4. fall-back: usable leftovers matched among themselves, predicted from the trusted
-    //    index pairs (or, without any, by the iterated matcher alone)
+    // 3. fall-back: usable leftovers matched among themselves, predicted from the trusted
+    //    (unflagged) index pairs nearby (or, without any, by the iterated matcher alone)
     let left_ref: Vec<bool> = (0..reference.len())
         .map(|i| use_ref[i] && ref_partner[i].is_none())
         .collect();
@@ -223,15 +576,9 @@ fn by_grid_index(
     if !left_ref.iter().any(|&b| b) || !left_grad.iter().any(|&b| b) {
         return passes;
     }
-    let fallback = if trusted.iter().any(Option::is_some) {
-        let pred = local_predictor(
-            ref_pos,
-            grad_pos,
-            &trusted,
-            &left_ref,
-            cfg.nearest.predictor_neighbours,
-            init,
-        );
+    let trusted = (0..reference.len()).any(|i| paired[i].is_some() && !flagged[i]);
+    let fallback = if trusted {
+        let pred = predict_all(&left_ref, &flagged);
         mutual_pass_sets(
             ref_pos,
             grad_pos,
@@ -248,7 +595,7 @@ fn by_grid_index(
         let gi = gradient[j].index;
         let mut flags = DotFlags::NONE;
         // the gradient dot carries the index of another reference dot: the indices contradict
-        if gi != reference[i].index && ref_map.contains_key(&gi) {
+        if gi != reference[i].index && table.get(gi).is_some() {
             flags.insert(DotFlags::GRID_MISMATCH);
         }
         pairs.push(Pair {

@@ -4,7 +4,8 @@
 use crate::error::MatchError;
 use crate::points::{PointSet, median};
 
-/// Settings of the kd-tree matcher ([`match_points`]).
+/// Settings of the nearest-neighbour matcher ([`match_points`], and the nearest-neighbour parts
+/// of [`crate::match_dots`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct NearestConfig {
     /// Search radius (px) around a reference dot's predicted position in the gradient image.
@@ -17,10 +18,15 @@ pub struct NearestConfig {
     /// again; the passes stop early when the matching no longer changes. Default 4.
     pub iterations: usize,
     /// How many nearest matched reference dots (the dot itself included when it is matched)
-    /// give the predicted displacement, as the median of each component. Default 8.
+    /// give the predicted displacement, as the median of each component. Default 8. (Grid-index
+    /// mode takes the lattice neighbours instead, widening the ring until half this number
+    /// is found.)
     pub predictor_neighbours: usize,
     /// Displacement (px) predicted for every dot before any match is known (`None`: zero).
-    /// Needed when the whole image moved by more than about 0.4 spacing (camera motion).
+    /// Needed by [`match_points`] when the whole image moved by more than about 0.4 spacing
+    /// (camera motion). In grid-index mode ([`crate::MatchMode::GridIndex`]) the index pairs
+    /// predict the displacement; this value only serves dots without any usable index pair
+    /// within 3 lattice steps.
     pub initial_displacement: Option<[f64; 2]>,
 }
 
@@ -175,16 +181,18 @@ pub(crate) fn local_predictor(
         if !want[i] {
             continue;
         }
-        matched.nearest_n(r, k, &mut nb);
-        if nb.is_empty() {
-            continue;
-        }
+        matched.nearest_n(r, k, None, &mut nb);
         bx.clear();
         by.clear();
-        for &m in &nb {
-            let j = partner[m].expect("the tree holds matched points only");
-            bx.push(gradient[j][0] - reference[m][0]);
-            by.push(gradient[j][1] - reference[m][1]);
+        for &(_, m) in &nb {
+            // the index holds matched points only
+            if let Some(j) = partner[m as usize] {
+                bx.push(gradient[j][0] - reference[m as usize][0]);
+                by.push(gradient[j][1] - reference[m as usize][1]);
+            }
+        }
+        if bx.is_empty() {
+            continue;
         }
         pred[i] = [median(&mut bx), median(&mut by)];
     }
@@ -212,7 +220,7 @@ pub(crate) fn mutual_pass_sets(
 }
 
 /// One mutual-nearest-neighbour pass with predicted displacements `pred`.
-fn mutual_pass(
+pub(crate) fn mutual_pass(
     reference: &[[f64; 2]],
     gradient: &[[f64; 2]],
     use_ref: &[bool],

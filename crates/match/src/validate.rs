@@ -4,6 +4,7 @@
 use crate::error::MatchError;
 use crate::points::{PointSet, median};
 use bostrack_core::DotFlags;
+use rayon::prelude::*;
 
 /// The normalised median test of Westerweel & Scarano (2005, "Universal outlier detection for
 /// PIV data", Exp. Fluids 39:1096-1100), for scattered vectors. For vector `d_0` and its
@@ -12,7 +13,8 @@ use bostrack_core::DotFlags;
 /// `r = |d_0 - median(d_i)| / (median(|d_i - median(d_i)|) + ε)`
 ///
 /// and the vector is an outlier when `r > threshold` in either component. The neighbours are
-/// the `neighbours` nearest vector positions (kd-tree), the vector itself left out.
+/// the `neighbours` nearest vector positions (spatial index; ties in distance go to the lower
+/// index), the vector itself left out.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct MedianTest {
     /// Number of nearest neighbours, default 8 (the 3x3 neighbourhood of the original test).
@@ -190,48 +192,53 @@ pub fn validate(
             .map(|i| finite(i) && checks[i].verdict != Verdict::TooLarge)
             .collect();
         let set = PointSet::new(positions, |i| eligible[i]);
-        let mut nb = Vec::with_capacity(k + 1);
-        let (mut bx, mut by) = (Vec::new(), Vec::new());
-        let (mut ax, mut ay) = (Vec::new(), Vec::new());
-        for i in 0..n {
-            if !finite(i) {
-                continue;
-            }
-            set.nearest_n(&positions[i], k + 1, &mut nb);
-            nb.retain(|&q| q != i);
-            nb.truncate(k);
-            if nb.len() < 3 {
-                continue; // keeps the threshold's verdict (Valid, TooLarge or NotTested)
-            }
-            bx.clear();
-            by.clear();
-            for &q in &nb {
-                bx.push(displacements[q][0]);
-                by.push(displacements[q][1]);
-            }
-            let mx = median(&mut bx);
-            let my = median(&mut by);
-            let c = &mut checks[i];
-            c.neighbour_median = Some([mx, my]);
-            let Some(m) = cfg.median_test else { continue };
-            if c.verdict == Verdict::TooLarge {
-                continue;
-            }
-            ax.clear();
-            ay.clear();
-            ax.extend(nb.iter().map(|&q| (displacements[q][0] - mx).abs()));
-            ay.extend(nb.iter().map(|&q| (displacements[q][1] - my).abs()));
-            let rx = (displacements[i][0] - mx).abs() / (median(&mut ax) + m.epsilon);
-            let ry = (displacements[i][1] - my).abs() / (median(&mut ay) + m.epsilon);
-            c.residual = Some([rx, ry]);
-            // with epsilon = 0 and identical neighbours, r = 0/0 = NaN for an identical
-            // vector (kept) and inf for a differing one (rejected)
-            c.verdict = if rx > m.threshold || ry > m.threshold {
-                Verdict::MedianTest
-            } else {
-                Verdict::Valid
-            };
-        }
+        // every dot's test is independent: rayon over dots, scratch buffers per worker
+        checks.par_iter_mut().enumerate().for_each_init(
+            || {
+                (
+                    Vec::with_capacity(k),
+                    [Vec::with_capacity(k), Vec::with_capacity(k)],
+                    [Vec::with_capacity(k), Vec::with_capacity(k)],
+                )
+            },
+            |(nb, [bx, by], [ax, ay]), (i, c)| {
+                if !finite(i) {
+                    return;
+                }
+                set.nearest_n(&positions[i], k, Some(i), nb);
+                if nb.len() < 3 {
+                    return; // keeps the threshold's verdict (Valid, TooLarge or NotTested)
+                }
+                bx.clear();
+                by.clear();
+                for &(_, q) in nb.iter() {
+                    bx.push(displacements[q as usize][0]);
+                    by.push(displacements[q as usize][1]);
+                }
+                let mx = median(bx);
+                let my = median(by);
+                c.neighbour_median = Some([mx, my]);
+                let Some(m) = cfg.median_test else { return };
+                if c.verdict == Verdict::TooLarge {
+                    return;
+                }
+                // (the median reordered bx and by; the deviations' median does not mind)
+                ax.clear();
+                ay.clear();
+                ax.extend(bx.iter().map(|v| (v - mx).abs()));
+                ay.extend(by.iter().map(|v| (v - my).abs()));
+                let rx = (displacements[i][0] - mx).abs() / (median(ax) + m.epsilon);
+                let ry = (displacements[i][1] - my).abs() / (median(ay) + m.epsilon);
+                c.residual = Some([rx, ry]);
+                // with epsilon = 0 and identical neighbours, r = 0/0 = NaN for an identical
+                // vector (kept) and inf for a differing one (rejected)
+                c.verdict = if rx > m.threshold || ry > m.threshold {
+                    Verdict::MedianTest
+                } else {
+                    Verdict::Valid
+                };
+            },
+        );
     }
 
     let replaced = cfg.replace.then(|| {

@@ -88,9 +88,8 @@ pub(crate) fn track_fit_match_timed(
         t.push("fit", sw.lap());
     }
 
-    // kd-tree settings: radius = search_radius x spacing; the predictor starts from the median
-    // displacement of the tracked dots (track keeps the reference's seed order), so a camera
-    // motion larger than the radius does not flag every index pair
+    // kd-tree settings: radius = search_radius x spacing; the median displacement of the
+    // tracked dots is the predictor of dots without usable index neighbours
     let spacing = ctx.detection.spacing;
     let initial_displacement = match init {
         [Some(x), Some(y)] => Some([x, y]),
