@@ -2,14 +2,15 @@
 //! same target, seeded by the reference detection).
 
 use crate::acf;
-use crate::classify::{Ctx, Site, Template, classify, interstitial_noise};
-use crate::filter::{DotMap, FilterParams, Peak, dist2};
+use crate::classify::{Ctx, Neighbourhoods, PAR_MIN, Site, Template, classify, interstitial_noise};
+use crate::filter::{DotMap, FilterParams, Maximum, Peak, dist2, nearest_strong_of};
 use crate::grow::{IndexGrid, find_start, grow};
 use crate::linalg::median;
 use crate::map::GridMap;
 use crate::size::{Patch, fit_sigma};
 use crate::{DetectConfig, DetectError, LatticeKind};
 use bostrack_core::{DotFlags, GridIndex, Image, Lattice, Mask, Seed};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::collections::VecDeque;
 
@@ -93,8 +94,14 @@ pub(crate) fn image_name(img: &Image) -> String {
     }
 }
 
-/// Checks shared by detect and track.
-fn check_inputs(img: &Image, mask: Option<&Mask>, name: &str) -> Result<Inputs, DetectError> {
+/// Checks shared by detect and track; `want_centre`: whether the centroid of the kept region
+/// is needed (detect).
+fn check_inputs(
+    img: &Image,
+    mask: Option<&Mask>,
+    name: &str,
+    want_centre: bool,
+) -> Result<Inputs, DetectError> {
     let (w, h) = (img.width(), img.height());
     if w < MIN_SIDE || h < MIN_SIDE {
         return Err(DetectError::ImageTooSmall {
@@ -119,8 +126,60 @@ fn check_inputs(img: &Image, mask: Option<&Mask>, name: &str) -> Result<Inputs, 
         }
     }
     // Range of the finite samples (a constant image has none), whether any is non-finite, and
-    // the centroid of the kept region.
-    let data = img.data();
+    // the centroid of the kept region; blocks of rows in parallel (minimum, maximum and integer
+    // sums do not depend on the order).
+    let rows_per_block = (65536 / w).max(1);
+    let (lo, hi, nonfinite) = img
+        .data()
+        .par_chunks(rows_per_block * w)
+        .map(range_of)
+        .reduce(
+            || (f64::INFINITY, f64::NEG_INFINITY, false),
+            |a, b| (a.0.min(b.0), a.1.max(b.1), a.2 | b.2),
+        );
+    let (sx, sy, n) = match mask.filter(|_| want_centre) {
+        Some(m) => m
+            .as_slice()
+            .par_chunks(rows_per_block * w)
+            .enumerate()
+            .map(|(b, block)| {
+                let (mut sx, mut sy, mut n) = (0u64, 0u64, 0u64);
+                for (r, row) in block.chunks_exact(w).enumerate() {
+                    let y = (b * rows_per_block + r) as u64;
+                    let mut cnt = 0u64;
+                    let mut xs = 0u64;
+                    for (x, &k) in row.iter().enumerate() {
+                        cnt += k as u64;
+                        xs += x as u64 * k as u64;
+                    }
+                    n += cnt;
+                    sx += xs;
+                    sy += cnt * y;
+                }
+                (sx, sy, n)
+            })
+            .reduce(|| (0, 0, 0), |a, b| (a.0 + b.0, a.1 + b.1, a.2 + b.2)),
+        None => (0, 0, 0),
+    };
+    let (sx, sy) = (sx as f64, sy as f64);
+    if hi.is_nan() || lo.is_nan() || hi - lo <= 1e-9 * hi.abs().max(lo.abs()) {
+        return Err(DetectError::NoContrast { image: name.into() });
+    }
+    let centre = if n > 0 {
+        [sx / n as f64, sy / n as f64]
+    } else {
+        [(w as f64 - 1.0) / 2.0, (h as f64 - 1.0) / 2.0]
+    };
+    Ok(Inputs {
+        fill: 0.5 * (lo + hi),
+        centre,
+        nonfinite,
+    })
+}
+
+/// Minimum and maximum of the finite samples of `data` (±∞ when there is none) and whether any
+/// sample is non-finite.
+fn range_of(data: &[f64]) -> (f64, f64, bool) {
     // Eight independent lanes so that the compiler vectorises the reductions; `v · 0` is NaN
     // exactly for non-finite samples, and a NaN in a lane sum stays NaN.
     let (mut lo8, mut hi8, mut bad8) = ([f64::INFINITY; 8], [f64::NEG_INFINITY; 8], [0.0f64; 8]);
@@ -149,40 +208,14 @@ fn check_inputs(img: &Image, mask: Option<&Mask>, name: &str) -> Result<Inputs, 
         lo = lo8.iter().fold(lo, |a, &b| a.min(b));
         hi = hi8.iter().fold(hi, |a, &b| a.max(b));
     }
-    let (mut sx, mut sy, mut n) = (0.0, 0.0, 0usize);
-    if let Some(m) = mask {
-        for (y, row) in m.as_slice().chunks_exact(w).enumerate() {
-            let mut cnt = 0usize;
-            let mut xs = 0usize;
-            for (x, &k) in row.iter().enumerate() {
-                cnt += k as usize;
-                xs += x * k as usize;
-            }
-            n += cnt;
-            sx += xs as f64;
-            sy += (cnt * y) as f64;
-        }
-    }
-    if hi.is_nan() || lo.is_nan() || hi - lo <= 1e-9 * hi.abs().max(lo.abs()) {
-        return Err(DetectError::NoContrast { image: name.into() });
-    }
-    let centre = if n > 0 {
-        [sx / n as f64, sy / n as f64]
-    } else {
-        [(w as f64 - 1.0) / 2.0, (h as f64 - 1.0) / 2.0]
-    };
-    Ok(Inputs {
-        fill: 0.5 * (lo + hi),
-        centre,
-        nonfinite,
-    })
+    (lo, hi, nonfinite)
 }
 
 /// What [`check_inputs`] learns about an image.
 struct Inputs {
     /// Replacement for non-finite samples (mid-range of the finite ones).
     fill: f64,
-    /// Centroid of the kept region (the image centre without a mask).
+    /// Centroid of the kept region (the image centre without a mask, or when not asked for).
     centre: [f64; 2],
     /// Whether any sample is non-finite.
     nonfinite: bool,
@@ -324,7 +357,7 @@ pub fn detect(
         fill,
         centre,
         nonfinite,
-    } = check_inputs(image, mask, &name)?;
+    } = check_inputs(image, mask, &name, true)?;
     let sign = cfg.polarity.sign();
 
     // 1-2. Lattice basis and dot size from the autocorrelation of a crop, the dot map, and
@@ -578,7 +611,7 @@ pub fn detect(
         cfg,
         noise,
     };
-    let classified = classify(&ctx, &sites);
+    let classified = classify(&ctx, &sites, None);
 
     // 7. Report: found dots centred on or next to a kept pixel; missing sites predicted on a kept
     //    pixel, and only when enclosed by found dots (or the edge of the kept region) along a
@@ -715,7 +748,7 @@ pub fn track(
     }
     let Inputs {
         fill, nonfinite, ..
-    } = check_inputs(image, mask, &name)?;
+    } = check_inputs(image, mask, &name, false)?;
     let sign = cfg.polarity.sign();
     let s = reference.spacing;
     let sigma = reference.diameter / 4.0;
@@ -724,20 +757,16 @@ pub fn track(
 
     let seeds = &reference.seeds;
     let n = seeds.len();
-    let (imin, imax) = seeds.iter().fold((i32::MAX, i32::MIN), |(lo, hi), t| {
-        (lo.min(t.index.i), hi.max(t.index.i))
-    });
-    let (jmin, jmax) = seeds.iter().fold((i32::MAX, i32::MIN), |(lo, hi), t| {
-        (lo.min(t.index.j), hi.max(t.index.j))
-    });
-    let mut slot = IndexGrid::new(imin, imax, jmin, jmax, usize::MAX);
-    for (k, t) in seeds.iter().enumerate() {
-        if let Some(v) = slot.get_mut(t.index.i, t.index.j) {
-            *v = k;
-        }
-    }
+    // Seed number per grid index and the seeds' 8-neighbourhoods (classification reuses them:
+    // its sites are the seeds, in order).
+    let nbhd = Neighbourhoods::new(|k| seeds[k].index, n);
+    let (slot, ring) = (&nbhd.slot, &nbhd.ring);
     let neighbours = |k: usize, r: i32, out: &mut Vec<usize>| {
         out.clear();
+        if r == 1 {
+            out.extend(ring.of(k));
+            return;
+        }
         let idx = seeds[k].index;
         for dj in -r..=r {
             for di in -r..=r {
@@ -756,42 +785,86 @@ pub fn track(
     // Pass 1: no predictor.
     let mut buf = Vec::new();
     let r1 = cfg.search_radius * s;
-    let first: Vec<Option<Peak>> = (0..n)
-        .map(|k| {
-            dmap.nearest_strong(q[k], r1, &mut buf)
-                .filter(|p| p.v > 0.0)
+    // Every maximum within r1 of each reference position is kept: the growth's searches,
+    // mostly within that disc, pick from them instead of scanning the map again. Blocks of
+    // seeds in parallel, joined in seed order.
+    // Per block: each seed's peak, the maxima kept and where each seed's maxima start.
+    type Block = (Vec<Option<Peak>>, Vec<Maximum>, Vec<usize>);
+    let blocks: Vec<Block> = (0..n.div_ceil(PAR_MIN))
+        .into_par_iter()
+        .map(|b| {
+            let (lo, hi) = (b * PAR_MIN, ((b + 1) * PAR_MIN).min(n));
+            let mut maxima = Vec::with_capacity(2 * (hi - lo));
+            let mut at = Vec::with_capacity(hi - lo);
+            let mut buf = Vec::new();
+            let first = (lo..hi)
+                .map(|k| {
+                    let from = maxima.len();
+                    at.push(from);
+                    dmap.local_maxima_px(q[k], r1, &mut maxima);
+                    buf.clear();
+                    buf.extend(maxima[from..].iter().map(|m| m.peak));
+                    nearest_strong_of(&buf, q[k]).filter(|p| p.v > 0.0)
+                })
+                .collect();
+            (first, maxima, at)
         })
         .collect();
+    let mut first: Vec<Option<Peak>> = Vec::with_capacity(n);
+    let mut maxima: Vec<Maximum> = Vec::new();
+    let mut maxima_at: Vec<usize> = Vec::with_capacity(n + 1);
+    for (f, m, at) in blocks {
+        let base = maxima.len();
+        first.extend(f);
+        maxima_at.extend(at.iter().map(|a| a + base));
+        maxima.extend(m);
+    }
+    maxima_at.push(maxima.len());
     let mut nb = Vec::with_capacity(24);
     let mut tx = Vec::with_capacity(24);
     let mut ty = Vec::with_capacity(24);
-    let mut starts: Vec<(f64, usize)> = Vec::new();
-    for k in 0..n {
-        let Some(p) = first[k] else { continue };
-        // The 3x3 index neighbours, or the 5x5 ones when fewer than three have a peak.
-        for r in 1..=2 {
-            neighbours(k, r, &mut nb);
-            tx.clear();
-            ty.clear();
-            for &o in &nb {
-                if let Some(pq) = first[o] {
-                    let d = disp(&pq, o);
-                    tx.push(d[0]);
-                    ty.push(d[1]);
+    // Dots whose displacement agrees with their neighbours' (each seed on its own).
+    let mut starts: Vec<(f64, usize)> = (0..n)
+        .into_par_iter()
+        .with_min_len(PAR_MIN)
+        .map_init(
+            || {
+                (
+                    Vec::with_capacity(24),
+                    Vec::with_capacity(24),
+                    Vec::with_capacity(24),
+                )
+            },
+            |(nb, tx, ty), k| {
+                let p = first[k]?;
+                // The 3x3 index neighbours, or the 5x5 ones when fewer than three have a peak.
+                for r in 1..=2 {
+                    neighbours(k, r, nb);
+                    tx.clear();
+                    ty.clear();
+                    for &o in nb.iter() {
+                        if let Some(pq) = first[o] {
+                            let d = disp(&pq, o);
+                            tx.push(d[0]);
+                            ty.push(d[1]);
+                        }
+                    }
+                    if tx.len() >= 3 {
+                        break;
+                    }
                 }
-            }
-            if tx.len() >= 3 {
-                break;
-            }
-        }
-        if tx.len() >= 3 {
-            let d = disp(&p, k);
-            let med = [median(&mut tx), median(&mut ty)];
-            if dist2(d, med) < (0.15 * s).powi(2) {
-                starts.push((norm(d), k));
-            }
-        }
-    }
+                if tx.len() >= 3 {
+                    let d = disp(&p, k);
+                    let med = [median(tx), median(ty)];
+                    if dist2(d, med) < (0.15 * s).powi(2) {
+                        return Some((norm(d), k));
+                    }
+                }
+                None
+            },
+        )
+        .flatten()
+        .collect();
     // Where the true displacement exceeds half a spacing, the nearest peak is a neighbour's
     // and its (wrong) displacement can look small and consistent too. The region of truly small
     // displacement is taken to be the largest connected one: the start is the smallest
@@ -839,7 +912,8 @@ pub fn track(
         .map(|k| (dnorm(k), k))
         .collect();
     // Then every other consistent dot, smallest displacement first (isolated parts).
-    starts.sort_by(|x, y| x.0.total_cmp(&y.0));
+    // Stable by displacement: `starts` is in index order, so ties keep the lower index first.
+    starts.sort_unstable_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
     ordered.extend(starts.iter().copied());
     let starts = ordered;
 
@@ -910,7 +984,17 @@ pub fn track(
             let m = median(&mut vals);
             pred_disp[t] = Some(pd);
             let c = [q[t][0] + pd[0], q[t][1] + pd[1]];
-            match dmap.nearest_strong(c, r2, &mut buf) {
+            // The disc of r2 around c lies inside the first pass's disc of r1 around q[t] (with
+            // a margin far above rounding): its maxima are among those kept.
+            let inside = pd[0].hypot(pd[1]) + r2 <= r1 - 1e-6;
+            let found = if inside {
+                buf.clear();
+                dmap.maxima_within(&maxima[maxima_at[t]..maxima_at[t + 1]], c, r2, &mut buf);
+                nearest_strong_of(&buf, c)
+            } else {
+                dmap.nearest_strong(c, r2, &mut buf)
+            };
+            match found {
                 Some(p) if p.v > 0.0 && p.v >= 0.3 * m => {
                     state[t] = St::Accepted;
                     result[t] = Some(p);
@@ -933,42 +1017,56 @@ pub fn track(
         }
     }
 
-    // Sites: predicted = reference position + the neighbours' median displacement.
-    let mut sites = Vec::with_capacity(n);
-    for k in 0..n {
-        for r in 1..=2 {
-            neighbours(k, r, &mut nb);
-            tx.clear();
-            ty.clear();
-            for &o in &nb {
-                if let Some(p) = result[o] {
-                    let d = disp(&p, o);
-                    tx.push(d[0]);
-                    ty.push(d[1]);
+    // Sites: predicted = reference position + the neighbours' median displacement (each seed
+    // on its own).
+    let sites: Vec<Site> = (0..n)
+        .into_par_iter()
+        .with_min_len(PAR_MIN)
+        .map_init(
+            || {
+                (
+                    Vec::with_capacity(24),
+                    Vec::with_capacity(24),
+                    Vec::with_capacity(24),
+                )
+            },
+            |(nb, tx, ty), k| {
+                for r in 1..=2 {
+                    neighbours(k, r, nb);
+                    tx.clear();
+                    ty.clear();
+                    for &o in nb.iter() {
+                        if let Some(p) = result[o] {
+                            let d = disp(&p, o);
+                            tx.push(d[0]);
+                            ty.push(d[1]);
+                        }
+                    }
+                    if tx.len() >= 2 {
+                        break;
+                    }
                 }
-            }
-            if tx.len() >= 2 {
-                break;
-            }
-        }
-        let pd = if tx.len() >= 2 {
-            [median(&mut tx), median(&mut ty)]
-        } else {
-            pred_disp[k].unwrap_or([0.0, 0.0])
-        };
-        // A dot the reference did not see must pass a stricter test when found by a search.
-        let peak_extra = if seeds[k].flags.contains(DotFlags::MISSING) {
-            1.0
-        } else {
-            0.0
-        };
-        sites.push(Site {
-            index: seeds[k].index,
-            predicted: [q[k][0] + pd[0], q[k][1] + pd[1]],
-            peak: result[k],
-            peak_extra,
-        });
-    }
+                let pd = if tx.len() >= 2 {
+                    [median(tx), median(ty)]
+                } else {
+                    pred_disp[k].unwrap_or([0.0, 0.0])
+                };
+                // A dot the reference did not see must pass a stricter test when found by a
+                // search.
+                let peak_extra = if seeds[k].flags.contains(DotFlags::MISSING) {
+                    1.0
+                } else {
+                    0.0
+                };
+                Site {
+                    index: seeds[k].index,
+                    predicted: [q[k][0] + pd[0], q[k][1] + pd[1]],
+                    peak: result[k],
+                    peak_extra,
+                }
+            },
+        )
+        .collect();
     let site_idx: Vec<GridIndex> = seeds.iter().map(|t| t.index).collect();
     let tpl = Template::new(
         sigma,
@@ -997,7 +1095,7 @@ pub fn track(
         cfg,
         noise,
     };
-    let classified = classify(&ctx, &sites);
+    let classified = classify(&ctx, &sites, Some(&nbhd));
     let (seeds, contrast): (Vec<Seed>, Vec<f64>) =
         classified.into_iter().map(|c| (c.seed, c.contrast)).unzip();
     let stats = stats_of(

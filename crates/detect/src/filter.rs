@@ -8,6 +8,7 @@
 //! mean; a missing dot leaves `D <= 0` plus noise.
 
 use bostrack_core::Image;
+use rayon::prelude::*;
 
 /// A single-channel f32 raster, row-major.
 #[derive(Clone, Debug)]
@@ -18,6 +19,7 @@ pub(crate) struct Plane {
 }
 
 impl Plane {
+    #[cfg(test)]
     fn zeros(w: usize, h: usize) -> Self {
         Plane {
             w,
@@ -66,6 +68,8 @@ impl FilterParams {
 pub(crate) struct DotMap {
     pub d: Plane,
     pub k: usize,
+    /// Whether each pixel of `d` is a local maximum (see [`DotMap::is_local_max`]).
+    lmax: Vec<bool>,
 }
 
 /// A local maximum of the dot map, in full-resolution image coordinates (sub-pixel).
@@ -92,139 +96,359 @@ fn gaussian_kernel(sigma: f64) -> Vec<f32> {
     w.iter().map(|v| (v / s) as f32).collect()
 }
 
-/// Horizontal convolution with edge replication.
-fn conv_rows(src: &Plane, k: &[f32]) -> Plane {
-    let (w, h) = (src.w, src.h);
-    let r = k.len() / 2;
-    let mut out = Plane::zeros(w, h);
-    let mut pad = Vec::with_capacity(w + 2 * r);
-    for y in 0..h {
-        let row = &src.data[y * w..(y + 1) * w];
-        pad.clear();
-        pad.extend(std::iter::repeat_n(row[0], r));
-        pad.extend_from_slice(row);
-        pad.extend(std::iter::repeat_n(row[w - 1], r));
-        let o = &mut out.data[y * w..(y + 1) * w];
-        for (t, &kt) in k.iter().enumerate() {
-            let s = &pad[t..t + w];
-            for (ov, sv) in o.iter_mut().zip(s) {
-                *ov += kt * sv;
+/// Columns per strip of the filter loops: their partial sums stay in eight SSE registers.
+const STRIP: usize = 32;
+
+/// `out[x] = Σ_t k[t] · src[offs[t] + x]`, the taps added in order from 0.0 in f32 (the same
+/// rounding as a tap-by-tap accumulation over a whole row), with the partial sums of a strip
+/// of columns kept in registers. The horizontal pass reads one padded row at offsets
+/// `0, 1, 2, …`; the vertical pass reads the rows of the taps (edges replicated by the caller).
+#[inline]
+fn correlate(src: &[f32], offs: &[usize], k: &[f32], out: &mut [f32]) {
+    let n = out.len();
+    let mut x = 0;
+    while x + STRIP <= n {
+        let mut acc = [0.0f32; STRIP];
+        for (&off, &kt) in offs.iter().zip(k) {
+            let s: &[f32; STRIP] = src[off + x..off + x + STRIP].try_into().unwrap();
+            for l in 0..STRIP {
+                acc[l] += kt * s[l];
             }
         }
+        out[x..x + STRIP].copy_from_slice(&acc);
+        x += STRIP;
     }
-    out
+    for (x, o) in out.iter_mut().enumerate().skip(x) {
+        let mut acc = 0.0f32;
+        for (&off, &kt) in offs.iter().zip(k) {
+            acc += kt * src[off + x];
+        }
+        *o = acc;
+    }
 }
 
-/// Vertical convolution with edge replication.
-fn conv_cols(src: &Plane, k: &[f32]) -> Plane {
-    let (w, h) = (src.w, src.h);
-    let r = k.len() / 2;
-    let mut out = Plane::zeros(w, h);
-    for y in 0..h {
-        let o = &mut out.data[y * w..(y + 1) * w];
-        for (t, &kt) in k.iter().enumerate() {
-            let yy = (y + t).saturating_sub(r).min(h - 1);
-            let s = &src.data[yy * w..(yy + 1) * w];
-            for (ov, sv) in o.iter_mut().zip(s) {
-                *ov += kt * sv;
-            }
-        }
-    }
-    out
-}
-
-/// Subtracts from `out` the mean of `src` over the `(2·half+1)²` box around each pixel (over
-/// the part of the box inside the image).
-fn subtract_box_mean(src: &Plane, half: usize, out: &mut Plane) {
-    let (w, h) = (src.w, src.h);
-    let mut col = vec![0.0f64; w];
-    let mut prefix = vec![0.0f64; w + 1];
-    for yy in 0..=half.min(h - 1) {
-        for (c, v) in col.iter_mut().zip(&src.data[yy * w..(yy + 1) * w]) {
-            *c += *v as f64;
-        }
-    }
+/// Subtracts from row `y` of the output the mean of J over the clipped `(2·half + 1)²` box
+/// around each pixel, from the prefix sums `prefix` (length `w + 1`) of that row's column sums.
+fn subtract_box_row(prefix: &[f64], h: usize, half: usize, y: usize, o: &mut [f32]) {
+    let w = o.len();
     let side = 2 * half + 1;
-    for y in 0..h {
-        if y > 0 {
-            let add = y + half;
-            if add < h {
-                for (c, v) in col.iter_mut().zip(&src.data[add * w..(add + 1) * w]) {
-                    *c += *v as f64;
-                }
-            }
-            if y > half {
-                let sub = y - half - 1;
-                for (c, v) in col.iter_mut().zip(&src.data[sub * w..(sub + 1) * w]) {
-                    *c -= *v as f64;
-                }
-            }
+    let nrows = ((y + half).min(h - 1) - y.saturating_sub(half) + 1) as f64;
+    let edge = |x: usize| {
+        let x0 = x.saturating_sub(half);
+        let x1 = (x + half + 1).min(w);
+        ((prefix[x1] - prefix[x0]) / ((x1 - x0) as f64 * nrows)) as f32
+    };
+    if w > side {
+        let inv = 1.0 / (side as f64 * nrows);
+        for x in 0..half {
+            o[x] -= edge(x);
         }
-        let rows = ((y + half).min(h - 1) - y.saturating_sub(half) + 1) as f64;
-        let mut acc = 0.0;
-        for x in 0..w {
-            acc += col[x];
-            prefix[x + 1] = acc;
+        let m = w - 2 * half;
+        let (hi, lo) = (&prefix[side..side + m], &prefix[..m]);
+        for ((ov, a), b) in o[half..half + m].iter_mut().zip(hi).zip(lo) {
+            *ov -= ((a - b) * inv) as f32;
         }
-        let o = &mut out.data[y * w..(y + 1) * w];
-        let edge = |x: usize| {
-            let x0 = x.saturating_sub(half);
-            let x1 = (x + half + 1).min(w);
-            ((prefix[x1] - prefix[x0]) / ((x1 - x0) as f64 * rows)) as f32
-        };
-        if w > side {
-            let inv = 1.0 / (side as f64 * rows);
-            for x in 0..half {
-                o[x] -= edge(x);
-            }
-            for x in half..w - half {
-                o[x] -= ((prefix[x + half + 1] - prefix[x - half]) * inv) as f32;
-            }
-            for x in w - half..w {
-                o[x] -= edge(x);
+        for x in w - half..w {
+            o[x] -= edge(x);
+        }
+    } else {
+        for (x, ov) in o.iter_mut().enumerate() {
+            *ov -= edge(x);
+        }
+    }
+}
+
+/// Row `yb` of `sign · I` binned by `k x k` blocks (mean), non-finite samples replaced by
+/// `fill`, into `out` (length `width / k`).
+fn binned_row(
+    img: &Image,
+    sign: f64,
+    fill: f64,
+    nonfinite: bool,
+    k: usize,
+    yb: usize,
+    out: &mut [f32],
+) {
+    let scale = sign / (k * k) as f64;
+    if k == 1 {
+        let row = img.row(yb);
+        if nonfinite {
+            for (ov, &v) in out.iter_mut().zip(row) {
+                *ov = (scale * if v.is_finite() { v } else { fill }) as f32;
             }
         } else {
-            for (x, ov) in o.iter_mut().enumerate() {
-                *ov -= edge(x);
+            for (ov, &v) in out.iter_mut().zip(row) {
+                *ov = (scale * v) as f32;
             }
+        }
+        return;
+    }
+    out.fill(0.0);
+    for dy in 0..k {
+        let row = img.row(yb * k + dy);
+        for (xb, ov) in out.iter_mut().enumerate() {
+            let s: f64 = row[xb * k..xb * k + k]
+                .iter()
+                .map(|&v| if v.is_finite() { v } else { fill })
+                .sum();
+            *ov += (scale * s) as f32;
         }
     }
 }
 
-/// `sign · I` binned by `k x k` blocks (mean), non-finite samples replaced by `fill`.
-fn binned(img: &Image, sign: f64, fill: f64, nonfinite: bool, k: usize) -> Plane {
-    let (wb, hb) = (img.width() / k, img.height() / k);
-    let mut out = Plane::zeros(wb, hb);
-    let scale = sign / (k * k) as f64;
-    for yb in 0..hb {
-        let o = &mut out.data[yb * wb..(yb + 1) * wb];
-        for dy in 0..k {
-            let row = img.row(yb * k + dy);
-            if k == 1 && !nonfinite {
-                for (ov, &v) in o.iter_mut().zip(row) {
-                    *ov = (scale * v) as f32;
-                }
-            } else if k == 1 {
-                for (ov, &v) in o.iter_mut().zip(row) {
-                    *ov = (scale * if v.is_finite() { v } else { fill }) as f32;
-                }
-            } else {
-                for (xb, ov) in o.iter_mut().enumerate() {
-                    let s: f64 = row[xb * k..xb * k + k]
-                        .iter()
-                        .map(|&v| if v.is_finite() { v } else { fill })
-                        .sum();
-                    *ov += (scale * s) as f32;
-                }
+/// Whether `(x, y)` is a local maximum of `d` over its 8 neighbours, for any pixel (edges
+/// included): strictly greater than the neighbours before it in raster order, not smaller than
+/// those after (a plateau gives one maximum).
+fn local_max_generic(d: &[f32], w: usize, h: usize, x: usize, y: usize) -> bool {
+    let v = d[y * w + x];
+    for ny in y.saturating_sub(1)..=(y + 1).min(h - 1) {
+        for nx in x.saturating_sub(1)..=(x + 1).min(w - 1) {
+            if nx == x && ny == y {
+                continue;
+            }
+            let nv = d[ny * w + nx];
+            let before = ny < y || (ny == y && nx < x);
+            if nv > v || (before && nv == v) {
+                return false;
             }
         }
     }
-    out
+    true
+}
+
+/// Local-maximum flags of row `y` of `d` ([`local_max_generic`]); the interior pixels by a
+/// branch-free pass over the three rows.
+fn row_maxima(d: &[f32], w: usize, h: usize, y: usize, out: &mut [bool]) {
+    if y == 0 || y + 1 >= h || w < 3 {
+        for (x, o) in out.iter_mut().enumerate() {
+            *o = local_max_generic(d, w, h, x, y);
+        }
+        return;
+    }
+    let up = &d[(y - 1) * w..y * w];
+    let mid = &d[y * w..(y + 1) * w];
+    let dn = &d[(y + 1) * w..(y + 2) * w];
+    let m = w - 2;
+    let (ul, uc, ur) = (&up[..m], &up[1..m + 1], &up[2..m + 2]);
+    let (ml, mc, mr) = (&mid[..m], &mid[1..m + 1], &mid[2..m + 2]);
+    let (dl, dc, dr) = (&dn[..m], &dn[1..m + 1], &dn[2..m + 2]);
+    let o = &mut out[1..m + 1];
+    for x in 0..m {
+        let v = mc[x];
+        o[x] = (ul[x] < v)
+            & (uc[x] < v)
+            & (ur[x] < v)
+            & (ml[x] < v)
+            & (mr[x] <= v)
+            & (dl[x] <= v)
+            & (dc[x] <= v)
+            & (dr[x] <= v);
+    }
+    out[0] = local_max_generic(d, w, h, 0, y);
+    out[w - 1] = local_max_generic(d, w, h, w - 1, y);
+}
+
+/// `ceil` without a library call (the baseline x86-64 target has no rounding instruction);
+/// exact, up to the sign of a zero result.
+#[inline]
+fn ceil_fast(t: f64) -> f64 {
+    if t.abs() < 4.0e15 {
+        let i = t as i64 as f64; // truncated, exact
+        if i < t { i + 1.0 } else { i }
+    } else {
+        t.ceil() // large, infinite or NaN
+    }
+}
+
+/// `floor` without a library call; exact, up to the sign of a zero result.
+#[inline]
+fn floor_fast(t: f64) -> f64 {
+    if t.abs() < 4.0e15 {
+        let i = t as i64 as f64; // truncated, exact
+        if i > t { i - 1.0 } else { i }
+    } else {
+        t.floor() // large, infinite or NaN
+    }
+}
+
+/// The source of the dot map: `sign · I` binned by `k x k` blocks (see [`binned_row`]).
+struct Binned<'a> {
+    img: &'a Image,
+    sign: f64,
+    fill: f64,
+    nonfinite: bool,
+    k: usize,
+}
+
+impl Binned<'_> {
+    #[inline]
+    fn row(&self, y: usize, out: &mut [f32]) {
+        binned_row(
+            self.img,
+            self.sign,
+            self.fill,
+            self.nonfinite,
+            self.k,
+            y,
+            out,
+        );
+    }
+}
+
+/// Rows `y0..` of the dot map (as many as `out` holds, `w` samples each) in one streaming pass:
+/// each binned row `J`, its horizontal Gaussian pass `H` and the column sums of the background
+/// box live in small ring buffers; an output row is the vertical Gaussian pass over the `H`
+/// rows minus the box mean. The column sums are first brought to row `y0` by the very sequence
+/// of additions and subtractions a pass from the top would make, so a band's rows are bit for
+/// bit those of the whole-image pass.
+#[allow(clippy::too_many_arguments)]
+fn dot_map_band(
+    src: &Binned,
+    w: usize,
+    h: usize,
+    kern: &[f32],
+    half: usize,
+    y0: usize,
+    out: &mut [f32],
+) {
+    let y_end = y0 + out.len() / w;
+    let r = kern.len() / 2;
+    // Ring of J and H rows: J is needed from row y - half - 1 to y + 1 + max(half, r), H from
+    // y - r to the same.
+    let ahead = half.max(r);
+    let cap = half + r + ahead + 3;
+    let mut jring = vec![0.0f32; cap * w];
+    let mut hring = vec![0.0f32; cap * w];
+    let mut pad = vec![0.0f32; w + 2 * r];
+    let taps: Vec<usize> = (0..kern.len()).collect();
+    let first = y0.saturating_sub(half + 1).min(y0.saturating_sub(r));
+    let mut made = first; // J and H rows computed so far (from `first`)
+    let mut make_rows = |upto: usize, jring: &mut [f32], hring: &mut [f32]| {
+        while made <= upto.min(h - 1) {
+            let s = (made % cap) * w;
+            let jr = &mut jring[s..s + w];
+            src.row(made, jr);
+            pad[..r].fill(jr[0]);
+            pad[r..r + w].copy_from_slice(jr);
+            pad[r + w..].fill(jr[w - 1]);
+            correlate(&pad, &taps, kern, &mut hring[s..s + w]);
+            made += 1;
+        }
+    };
+    let row_of = |t: usize| -> std::ops::Range<usize> {
+        let s = (t % cap) * w;
+        s..s + w
+    };
+    let zeros = vec![0.0f32; w];
+    // Column sums of J over rows 0..=half, then the updates of rows 1..y0 (row yy gains row
+    // yy + half and loses row yy - half - 1; a zero row where there is none: adding +0 to a
+    // sum that started at +0 changes nothing).
+    let mut col = vec![0.0f64; w];
+    {
+        let (mut ja, mut js) = (vec![0.0f32; w], vec![0.0f32; w]);
+        for yy in 0..=half.min(h - 1) {
+            src.row(yy, &mut ja);
+            for (c, v) in col.iter_mut().zip(&ja) {
+                *c += *v as f64;
+            }
+        }
+        for yy in 1..y0 {
+            let add = if yy + half < h {
+                src.row(yy + half, &mut ja);
+                &ja[..]
+            } else {
+                &zeros[..]
+            };
+            let sub = if yy > half {
+                src.row(yy - half - 1, &mut js);
+                &js[..]
+            } else {
+                &zeros[..]
+            };
+            for ((c, a), s) in col.iter_mut().zip(add).zip(sub) {
+                *c = *c + *a as f64 - *s as f64;
+            }
+        }
+    }
+    let mut col2 = vec![0.0f64; w];
+    let (mut pa, mut pb) = (vec![0.0f64; w + 1], vec![0.0f64; w + 1]);
+    let mut offs = vec![0usize; kern.len()];
+    // Rows in pairs, so that the two rows' prefix sums (each a chain of dependent additions)
+    // run side by side.
+    let mut y = y0;
+    while y < y_end {
+        let pair = y + 1 < y_end;
+        let last = if pair { y + 1 } else { y };
+        make_rows(last + ahead, &mut jring, &mut hring);
+        // Vertical Gaussian pass (edge rows replicated).
+        for yy in y..=last {
+            for (t, off) in offs.iter_mut().enumerate() {
+                *off = row_of((yy + t).saturating_sub(r).min(h - 1)).start;
+            }
+            let o = &mut out[(yy - y0) * w..(yy - y0 + 1) * w];
+            correlate(&hring, &offs, kern, o);
+        }
+        // Box mean of J over the clipped (2·half + 1)² box: the column sums' update, then a
+        // prefix sum along the row.
+        let updates = |yy: usize| -> (&[f32], &[f32]) {
+            if yy == 0 {
+                return (&zeros, &zeros);
+            }
+            let add = if yy + half < h {
+                &jring[row_of(yy + half)]
+            } else {
+                &zeros[..]
+            };
+            let sub = if yy > half {
+                &jring[row_of(yy - half - 1)]
+            } else {
+                &zeros[..]
+            };
+            (add, sub)
+        };
+        let (a_add, a_sub) = updates(y);
+        for ((c, a), s) in col.iter_mut().zip(a_add).zip(a_sub) {
+            *c = *c + *a as f64 - *s as f64;
+        }
+        if pair {
+            let (b_add, b_sub) = updates(y + 1);
+            for (((c2, c), a), s) in col2.iter_mut().zip(&col).zip(b_add).zip(b_sub) {
+                *c2 = *c + *a as f64 - *s as f64;
+            }
+            let (mut acc_a, mut acc_b) = (0.0, 0.0);
+            for x in 0..w {
+                acc_a += col[x];
+                acc_b += col2[x];
+                pa[x + 1] = acc_a;
+                pb[x + 1] = acc_b;
+            }
+            std::mem::swap(&mut col, &mut col2);
+        } else {
+            let mut acc_a = 0.0;
+            for x in 0..w {
+                acc_a += col[x];
+                pa[x + 1] = acc_a;
+            }
+        }
+        let o = &mut out[(y - y0) * w..(last - y0 + 1) * w];
+        let (oa, ob) = o.split_at_mut(w);
+        subtract_box_row(&pa, h, half, y, oa);
+        if pair {
+            subtract_box_row(&pb, h, half, y + 1, ob);
+        }
+        y = last + 1;
+    }
 }
 
 impl DotMap {
     /// Build the dot map of `img` (see the module documentation). `fill` replaces non-finite
     /// samples (`nonfinite` says whether there are any).
+    ///
+    /// The rows are computed in bands, in parallel on the current rayon pool (one band per
+    /// thread; see [`dot_map_band`]), then the local-maximum flags row by row. The arithmetic
+    /// (order of every f32 and f64 operation) is that of three whole-image passes, horizontal
+    /// Gaussian, vertical Gaussian, box mean over `J` (running f64 column sums and a per-row f64
+    /// prefix sum), whatever the number of bands: the result does not depend on the threads.
     pub(crate) fn build(
         img: &Image,
         sign: f64,
@@ -232,11 +456,47 @@ impl DotMap {
         nonfinite: bool,
         p: &FilterParams,
     ) -> Self {
-        let j = binned(img, sign, fill, nonfinite, p.k);
+        // Bands of at least 64 rows; later bands replay the column sums above them (about
+        // 3 operations per pixel above), so that a few bands cost little.
+        let h = img.height() / p.k;
+        let bands = rayon::current_num_threads().min(h / 64).clamp(1, 8);
+        Self::build_in_bands(img, sign, fill, nonfinite, p, bands)
+    }
+
+    /// [`DotMap::build`] with a given number of bands (the result does not depend on it).
+    fn build_in_bands(
+        img: &Image,
+        sign: f64,
+        fill: f64,
+        nonfinite: bool,
+        p: &FilterParams,
+        bands: usize,
+    ) -> Self {
+        let k = p.k;
+        let (w, h) = (img.width() / k, img.height() / k);
         let kern = gaussian_kernel(p.sigma_f);
-        let mut d = conv_cols(&conv_rows(&j, &kern), &kern);
-        subtract_box_mean(&j, p.box_half, &mut d);
-        DotMap { d, k: p.k }
+        let src = Binned {
+            img,
+            sign,
+            fill,
+            nonfinite,
+            k,
+        };
+        let band = h.div_ceil(bands.clamp(1, h));
+        let mut data = vec![0.0f32; w * h];
+        data.par_chunks_mut(band * w)
+            .enumerate()
+            .for_each(|(b, out)| dot_map_band(&src, w, h, &kern, p.box_half, b * band, out));
+        let mut lmax = vec![false; w * h];
+        lmax.par_chunks_mut(w)
+            .enumerate()
+            .with_min_len(32)
+            .for_each(|(y, o)| row_maxima(&data, w, h, y, o));
+        DotMap {
+            d: Plane { w, h, data },
+            k,
+            lmax,
+        }
     }
 
     /// Full-resolution coordinate of binned coordinate `t`.
@@ -266,35 +526,7 @@ impl DotMap {
     /// maximum: a pixel must be strictly greater than the neighbours before it in raster order).
     #[inline]
     fn is_local_max(&self, x: usize, y: usize) -> bool {
-        let (w, h) = (self.d.w, self.d.h);
-        let d = &self.d.data;
-        let v = d[y * w + x];
-        if x > 0 && y > 0 && x + 1 < w && y + 1 < h {
-            let up = &d[(y - 1) * w + x - 1..(y - 1) * w + x + 2];
-            let mid = &d[y * w + x - 1..y * w + x + 2];
-            let dn = &d[(y + 1) * w + x - 1..(y + 1) * w + x + 2];
-            return up[0] < v
-                && up[1] < v
-                && up[2] < v
-                && mid[0] < v
-                && mid[2] <= v
-                && dn[0] <= v
-                && dn[1] <= v
-                && dn[2] <= v;
-        }
-        for ny in y.saturating_sub(1)..=(y + 1).min(h - 1) {
-            for nx in x.saturating_sub(1)..=(x + 1).min(w - 1) {
-                if nx == x && ny == y {
-                    continue;
-                }
-                let nv = d[ny * w + nx];
-                let before = ny < y || (ny == y && nx < x);
-                if nv > v || (before && nv == v) {
-                    return false;
-                }
-            }
-        }
-        true
+        self.lmax[y * self.d.w + x]
     }
 
     /// The peak at binned pixel `(x, y)` with a parabolic sub-pixel position.
@@ -328,10 +560,10 @@ impl DotMap {
         if !(cx.is_finite() && cy.is_finite() && r.is_finite()) {
             return None;
         }
-        let x0 = ((cx - r).ceil() as i64).max(0);
-        let x1 = ((cx + r).floor() as i64).min(w - 1);
-        let y0 = ((cy - r).ceil() as i64).max(0);
-        let y1 = ((cy + r).floor() as i64).min(h - 1);
+        let x0 = (ceil_fast(cx - r) as i64).max(0);
+        let x1 = (floor_fast(cx + r) as i64).min(w - 1);
+        let y0 = (ceil_fast(cy - r) as i64).max(0);
+        let y1 = (floor_fast(cy + r) as i64).min(h - 1);
         (x0 <= x1 && y0 <= y1).then_some((
             cx,
             cy,
@@ -349,8 +581,8 @@ impl DotMap {
             return (1, 0);
         }
         let hc = hc2.sqrt();
-        let x0 = (cx - hc).ceil().max(0.0) as usize;
-        let x1 = ((cx + hc).floor() as i64).min(self.d.w as i64 - 1);
+        let x0 = ceil_fast(cx - hc).max(0.0) as usize;
+        let x1 = (floor_fast(cx + hc) as i64).min(self.d.w as i64 - 1);
         if x1 < x0 as i64 {
             (1, 0)
         } else {
@@ -358,18 +590,67 @@ impl DotMap {
         }
     }
 
-    /// Appends to `out` every 8-neighbour local maximum of D within `radius` (full-resolution
-    /// px) of `c`, with a parabolic sub-pixel position.
-    pub(crate) fn local_maxima(&self, c: [f64; 2], radius: f64, out: &mut Vec<Peak>) {
+    /// Calls `f(x, y)` for every binned pixel within `radius` (full-resolution px) of `c` that
+    /// is an 8-neighbour local maximum of D, in raster order.
+    #[inline]
+    fn scan_maxima(&self, c: [f64; 2], radius: f64, mut f: impl FnMut(usize, usize)) {
         let Some((cx, cy, r, [_, _, y0, y1])) = self.disc(c, radius) else {
             return;
         };
+        let w = self.d.w;
         for y in y0..=y1 {
             let (x0, x1) = self.chord(cx, cy, r, y);
-            for x in x0..=x1 {
-                if self.is_local_max(x, y) {
-                    out.push(self.peak_at(x, y));
+            if x0 > x1 {
+                continue;
+            }
+            for (k, &m) in self.lmax[y * w + x0..=y * w + x1].iter().enumerate() {
+                if m {
+                    f(x0 + k, y);
                 }
+            }
+        }
+    }
+
+    /// Appends to `out` every 8-neighbour local maximum of D within `radius` (full-resolution
+    /// px) of `c`, with a parabolic sub-pixel position.
+    pub(crate) fn local_maxima(&self, c: [f64; 2], radius: f64, out: &mut Vec<Peak>) {
+        self.scan_maxima(c, radius, |x, y| out.push(self.peak_at(x, y)));
+    }
+
+    /// [`DotMap::local_maxima`] with the binned pixel of each maximum, for
+    /// [`DotMap::maxima_within`].
+    pub(crate) fn local_maxima_px(&self, c: [f64; 2], radius: f64, out: &mut Vec<Maximum>) {
+        self.scan_maxima(c, radius, |x, y| {
+            out.push(Maximum {
+                x: x as u32,
+                y: y as u32,
+                peak: self.peak_at(x, y),
+            })
+        });
+    }
+
+    /// Appends to `out`, in order, the maxima of `list` that [`DotMap::local_maxima`] of `c`
+    /// and `radius` would return, provided `list` holds every maximum of a disc that contains
+    /// that disc (e.g. [`DotMap::local_maxima_px`] of a larger disc around a nearby point):
+    /// the same pixel test on fewer candidates.
+    pub(crate) fn maxima_within(
+        &self,
+        list: &[Maximum],
+        c: [f64; 2],
+        radius: f64,
+        out: &mut Vec<Peak>,
+    ) {
+        let Some((cx, cy, r, [_, _, y0, y1])) = self.disc(c, radius) else {
+            return;
+        };
+        for m in list {
+            let (x, y) = (m.x as usize, m.y as usize);
+            if y < y0 || y > y1 {
+                continue;
+            }
+            let (x0, x1) = self.chord(cx, cy, r, y);
+            if x0 <= x && x <= x1 {
+                out.push(m.peak);
             }
         }
     }
@@ -413,12 +694,27 @@ impl DotMap {
     ) -> Option<Peak> {
         buf.clear();
         self.local_maxima(c, radius, buf);
-        let vmax = buf.iter().map(|p| p.v).fold(f64::NEG_INFINITY, f64::max);
-        buf.iter()
-            .copied()
-            .filter(|p| p.v >= 0.5 * vmax)
-            .min_by(|a, b| dist2(a.pos(), c).total_cmp(&dist2(b.pos(), c)))
+        nearest_strong_of(buf, c)
     }
+}
+
+/// Among `peaks` (in scan order), those at least half the strongest, the one nearest to `c`
+/// (the first one on a tie): the choice of [`DotMap::nearest_strong`].
+pub(crate) fn nearest_strong_of(peaks: &[Peak], c: [f64; 2]) -> Option<Peak> {
+    let vmax = peaks.iter().map(|p| p.v).fold(f64::NEG_INFINITY, f64::max);
+    peaks
+        .iter()
+        .copied()
+        .filter(|p| p.v >= 0.5 * vmax)
+        .min_by(|a, b| dist2(a.pos(), c).total_cmp(&dist2(b.pos(), c)))
+}
+
+/// A local maximum of the dot map with its binned pixel.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Maximum {
+    pub x: u32,
+    pub y: u32,
+    pub peak: Peak,
 }
 
 /// Vertex offset of the parabola through (-1, a), (0, b), (1, c), clamped to ±0.5.
@@ -441,6 +737,256 @@ pub(crate) fn dist2(p: [f64; 2], q: [f64; 2]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    // The plain three-pass dot map (horizontal Gaussian, vertical Gaussian, box mean, each over
+    // the whole image) and the direct local-maximum test: the reference that the streaming
+    // [`DotMap::build`] must reproduce bit for bit.
+
+    fn conv_rows(src: &Plane, k: &[f32]) -> Plane {
+        let (w, h) = (src.w, src.h);
+        let r = k.len() / 2;
+        let mut out = Plane::zeros(w, h);
+        let mut pad = Vec::with_capacity(w + 2 * r);
+        for y in 0..h {
+            let row = &src.data[y * w..(y + 1) * w];
+            pad.clear();
+            pad.extend(std::iter::repeat_n(row[0], r));
+            pad.extend_from_slice(row);
+            pad.extend(std::iter::repeat_n(row[w - 1], r));
+            let o = &mut out.data[y * w..(y + 1) * w];
+            for (t, &kt) in k.iter().enumerate() {
+                let s = &pad[t..t + w];
+                for (ov, sv) in o.iter_mut().zip(s) {
+                    *ov += kt * sv;
+                }
+            }
+        }
+        out
+    }
+
+    fn conv_cols(src: &Plane, k: &[f32]) -> Plane {
+        let (w, h) = (src.w, src.h);
+        let r = k.len() / 2;
+        let mut out = Plane::zeros(w, h);
+        for y in 0..h {
+            let o = &mut out.data[y * w..(y + 1) * w];
+            for (t, &kt) in k.iter().enumerate() {
+                let yy = (y + t).saturating_sub(r).min(h - 1);
+                let s = &src.data[yy * w..(yy + 1) * w];
+                for (ov, sv) in o.iter_mut().zip(s) {
+                    *ov += kt * sv;
+                }
+            }
+        }
+        out
+    }
+
+    fn subtract_box_mean(src: &Plane, half: usize, out: &mut Plane) {
+        let (w, h) = (src.w, src.h);
+        let mut col = vec![0.0f64; w];
+        let mut prefix = vec![0.0f64; w + 1];
+        for yy in 0..=half.min(h - 1) {
+            for (c, v) in col.iter_mut().zip(&src.data[yy * w..(yy + 1) * w]) {
+                *c += *v as f64;
+            }
+        }
+        for y in 0..h {
+            if y > 0 {
+                let add = y + half;
+                if add < h {
+                    for (c, v) in col.iter_mut().zip(&src.data[add * w..(add + 1) * w]) {
+                        *c += *v as f64;
+                    }
+                }
+                if y > half {
+                    let sub = y - half - 1;
+                    for (c, v) in col.iter_mut().zip(&src.data[sub * w..(sub + 1) * w]) {
+                        *c -= *v as f64;
+                    }
+                }
+            }
+            let rows = ((y + half).min(h - 1) - y.saturating_sub(half) + 1) as f64;
+            let mut acc = 0.0;
+            for x in 0..w {
+                acc += col[x];
+                prefix[x + 1] = acc;
+            }
+            for x in 0..w {
+                let x0 = x.saturating_sub(half);
+                let x1 = (x + half + 1).min(w);
+                let m = if x >= half && x + half < w {
+                    let inv = 1.0 / ((2 * half + 1) as f64 * rows);
+                    ((prefix[x1] - prefix[x0]) * inv) as f32
+                } else {
+                    ((prefix[x1] - prefix[x0]) / ((x1 - x0) as f64 * rows)) as f32
+                };
+                out.data[y * w + x] -= m;
+            }
+        }
+    }
+
+    fn reference_map(
+        img: &Image,
+        sign: f64,
+        fill: f64,
+        nonfinite: bool,
+        p: &FilterParams,
+    ) -> Plane {
+        let k = p.k;
+        let (w, h) = (img.width() / k, img.height() / k);
+        let mut j = Plane::zeros(w, h);
+        for y in 0..h {
+            binned_row(
+                img,
+                sign,
+                fill,
+                nonfinite,
+                k,
+                y,
+                &mut j.data[y * w..(y + 1) * w],
+            );
+        }
+        let kern = gaussian_kernel(p.sigma_f);
+        let mut d = conv_cols(&conv_rows(&j, &kern), &kern);
+        subtract_box_mean(&j, p.box_half, &mut d);
+        d
+    }
+
+    fn reference_local_max(d: &Plane, x: usize, y: usize) -> bool {
+        let (w, h) = (d.w, d.h);
+        let v = d.at(x, y);
+        if x > 0 && y > 0 && x + 1 < w && y + 1 < h {
+            return d.at(x - 1, y - 1) < v
+                && d.at(x, y - 1) < v
+                && d.at(x + 1, y - 1) < v
+                && d.at(x - 1, y) < v
+                && d.at(x + 1, y) <= v
+                && d.at(x - 1, y + 1) <= v
+                && d.at(x, y + 1) <= v
+                && d.at(x + 1, y + 1) <= v;
+        }
+        local_max_generic(&d.data, w, h, x, y)
+    }
+
+    #[test]
+    fn streaming_build_equals_the_three_pass_filter_bit_for_bit() {
+        // Float-valued dots on a sloping background with noise-like texture, plateaus (integer
+        // steps) and, in one case, non-finite samples; several sizes, binnings and filters.
+        for (w, h, k, sigma_f, box_half, bad) in [
+            (61usize, 47usize, 1usize, 1.3, 4usize, false),
+            (40, 33, 1, 0.6, 1, true),
+            (70, 52, 2, 1.6, 3, true),
+            (64, 64, 3, 1.0, 2, false),
+            (9, 40, 1, 1.2, 6, false),
+        ] {
+            let img = Image::from_fn(w, h, |x, y| {
+                let (fx, fy) = (x as f64, y as f64);
+                let dots = (fx * 0.79).sin() * (fy * 0.81).cos();
+                let tex = ((x * 7919 + y * 104729) % 97) as f64 * 0.37;
+                let v = 200.0 + 3.0 * fx - 2.0 * fy + 500.0 * dots * dots + tex;
+                if bad && (x * 13 + y * 7) % 89 == 0 {
+                    f64::NAN
+                } else if (x / 5 + y / 5) % 7 == 0 {
+                    v.floor()
+                } else {
+                    v
+                }
+            });
+            let p = FilterParams {
+                k,
+                sigma_f,
+                box_half,
+            };
+            for (sign, bands) in [(1.0, 1), (-1.0, 1), (1.0, 2), (1.0, 3), (-1.0, 7)] {
+                let m = DotMap::build_in_bands(&img, sign, 321.5, bad, &p, bands);
+                let want = reference_map(&img, sign, 321.5, bad, &p);
+                assert_eq!((m.d.w, m.d.h), (want.w, want.h));
+                for (a, b) in m.d.data.iter().zip(&want.data) {
+                    assert_eq!(
+                        a.to_bits(),
+                        b.to_bits(),
+                        "{w}x{h} k {k} bands {bands}: {a} vs {b}"
+                    );
+                }
+                for y in 0..want.h {
+                    for x in 0..want.w {
+                        assert_eq!(
+                            m.is_local_max(x, y),
+                            reference_local_max(&want, x, y),
+                            "{w}x{h} k {k} at ({x}, {y})"
+                        );
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn maxima_within_a_larger_disc_are_those_of_a_scan() {
+        // A noisy dot pattern (many maxima); discs of r2 inside discs of r1 around nearby
+        // points, edges of the map included, binned and not.
+        let img = Image::from_fn(48, 40, |x, y| {
+            let (fx, fy) = (x as f64, y as f64);
+            100.0
+                + 400.0 * ((fx * 0.8).sin() * (fy * 0.77).cos()).powi(2)
+                + ((x * 7919 + y * 104729) % 89) as f64
+        });
+        let mut state = 7u64;
+        let mut uniform = || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for k in [1usize, 2] {
+            let p = FilterParams {
+                k,
+                sigma_f: 0.8,
+                box_half: 3,
+            };
+            let m = DotMap::build(&img, 1.0, 0.0, false, &p);
+            let (r1, r2) = (3.6, 2.4);
+            for _ in 0..400 {
+                let q = [uniform() * 52.0 - 2.0, uniform() * 44.0 - 2.0];
+                let (a, d) = (uniform() * 6.3, uniform() * (r1 - r2 - 1e-6));
+                let c = [q[0] + d * a.cos(), q[1] + d * a.sin()];
+                let mut list = Vec::new();
+                m.local_maxima_px(q, r1, &mut list);
+                let (mut got, mut want) = (Vec::new(), Vec::new());
+                m.maxima_within(&list, c, r2, &mut got);
+                m.local_maxima(c, r2, &mut want);
+                assert_eq!(got, want, "k {k} q {q:?} c {c:?}");
+                assert_eq!(
+                    nearest_strong_of(&got, c),
+                    m.nearest_strong(c, r2, &mut want)
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn fast_rounding_matches_the_library() {
+        for t in [
+            -3.5,
+            -3.0,
+            -2.7,
+            -0.5,
+            -0.0,
+            0.0,
+            0.2,
+            1.0,
+            1.5,
+            2.9999,
+            4.5e15,
+            -7e15,
+            1e300,
+            f64::INFINITY,
+        ] {
+            assert_eq!(ceil_fast(t), t.ceil(), "{t}");
+            assert_eq!(floor_fast(t), t.floor(), "{t}");
+        }
+        assert!(ceil_fast(f64::NAN).is_nan() && floor_fast(f64::NAN).is_nan());
+    }
 
     #[test]
     fn box_mean_is_the_mean_over_the_clipped_box() {

@@ -6,6 +6,7 @@
 use crate::filter::{DotMap, Peak};
 use crate::linalg::median;
 use bostrack_core::GridIndex;
+use rayon::prelude::*;
 use std::collections::VecDeque;
 
 /// A dense 2-D array over a range of grid indices.
@@ -106,6 +107,48 @@ impl<T: Clone> IndexGrid<T> {
     #[inline]
     pub(crate) fn get_mut(&mut self, i: i32, j: i32) -> Option<&mut T> {
         self.slot(i, j).map(|k| &mut self.data[k])
+    }
+}
+
+/// The 8-neighbourhood of every item of a list placed on an [`IndexGrid`] of slots (item index
+/// or `usize::MAX`): for each item, the items at the 3x3 index neighbours without itself, in
+/// grid order (`j`, then `i`). Computed once, it replaces repeated grid look-ups.
+pub(crate) struct Ring1 {
+    nb: Vec<[u32; 8]>,
+    len: Vec<u8>,
+}
+
+impl Ring1 {
+    pub(crate) fn new(
+        slot: &IndexGrid<usize>,
+        index: impl Fn(usize) -> GridIndex + Sync,
+        n: usize,
+    ) -> Self {
+        // Each item on its own (in parallel), in order.
+        let (nb, len): (Vec<[u32; 8]>, Vec<u8>) = (0..n)
+            .into_par_iter()
+            .with_min_len(256)
+            .map(|k| {
+                let idx = index(k);
+                let (mut out, mut cnt) = ([0u32; 8], 0u8);
+                slot.visit(idx.i, idx.j, 1, |di, dj, &q| {
+                    if (di, dj) != (0, 0) && q != usize::MAX && (cnt as usize) < 8 {
+                        out[cnt as usize] = q as u32;
+                        cnt += 1;
+                    }
+                });
+                (out, cnt)
+            })
+            .unzip();
+        Ring1 { nb, len }
+    }
+
+    /// The neighbours of item `k`.
+    #[inline]
+    pub(crate) fn of(&self, k: usize) -> impl Iterator<Item = usize> + '_ {
+        self.nb[k][..self.len[k] as usize]
+            .iter()
+            .map(|&q| q as usize)
     }
 }
 

@@ -50,6 +50,11 @@ pub(crate) fn median(v: &mut [f64]) -> f64 {
         return f64::NAN;
     }
     let n = v.len();
+    if n <= 8
+        && let Some(m) = median8(v)
+    {
+        return m;
+    }
     if n <= 24 {
         // Insertion sort: cheaper than selection for the small neighbourhoods used here.
         for k in 1..n {
@@ -78,6 +83,89 @@ pub(crate) fn median(v: &mut [f64]) -> f64 {
     }
 }
 
+/// The 19-comparator sorting network for 8 values (unrolled in [`median8`]; tested here).
+#[cfg(test)]
+const NET8: [(usize, usize); 19] = [
+    (0, 1),
+    (2, 3),
+    (4, 5),
+    (6, 7),
+    (0, 2),
+    (1, 3),
+    (4, 6),
+    (5, 7),
+    (1, 2),
+    (5, 6),
+    (0, 4),
+    (3, 7),
+    (1, 5),
+    (2, 6),
+    (1, 4),
+    (3, 6),
+    (2, 4),
+    (3, 5),
+    (3, 4),
+];
+
+/// Median of at most 8 values by a branch-free sorting network (padded with values above all
+/// others), or `None` when a value is zero or not finite. Without zeros (whose sign a sort may order either way)
+/// and non-finite values, equal values are identical, so every sort gives the same sorted
+/// sequence and this median is exactly that of the insertion sort. The slice is not reordered.
+#[inline]
+fn median8(v: &[f64]) -> Option<f64> {
+    let n = v.len();
+    // Finite non-zero values as integers of the same order (the bits of a positive value;
+    // those of a negative one with the magnitude bits flipped): the network then runs on
+    // integer `min`/`max`, which compile to conditional moves.
+    let mut s = [i64::MAX; 8];
+    let mut ok = true;
+    for (d, &x) in s.iter_mut().zip(v) {
+        let b = x.to_bits() as i64;
+        // Finite and non-zero: the magnitude bits lie in 1..=the largest finite value.
+        ok &= ((b & i64::MAX) as u64).wrapping_sub(1) < f64::MAX.to_bits();
+        *d = b ^ ((b >> 63) & i64::MAX);
+    }
+    if !ok {
+        return None;
+    }
+    macro_rules! net {
+        ($(($i:literal, $j:literal)),*) => {
+            $(
+                let (a, b) = (s[$i], s[$j]);
+                s[$i] = a.min(b);
+                s[$j] = a.max(b);
+            )*
+        };
+    }
+    net!(
+        (0, 1),
+        (2, 3),
+        (4, 5),
+        (6, 7),
+        (0, 2),
+        (1, 3),
+        (4, 6),
+        (5, 7),
+        (1, 2),
+        (5, 6),
+        (0, 4),
+        (3, 7),
+        (1, 5),
+        (2, 6),
+        (1, 4),
+        (3, 6),
+        (2, 4),
+        (3, 5),
+        (3, 4)
+    );
+    let val = |k: i64| f64::from_bits((k ^ ((k >> 63) & i64::MAX)) as u64);
+    Some(if n % 2 == 1 {
+        val(s[n / 2])
+    } else {
+        0.5 * (val(s[n / 2 - 1]) + val(s[n / 2]))
+    })
+}
+
 /// `out[k] = exp(c · (d0 + k)²)` for `k = 0..out.len()` (a sampled Gaussian when `c < 0`), by
 /// the recurrence `g(t+1) = g(t)·r(t)`, `r(t+1) = r(t)·q` with `q = exp(2c)` (passed in, so that
 /// it is computed once per σ) run outwards from the sample nearest the centre: two `exp` calls
@@ -87,7 +175,7 @@ pub(crate) fn gauss_samples(out: &mut [f64], d0: f64, c: f64, q: f64) {
     if n == 0 {
         return;
     }
-    let k0 = (-d0).round().clamp(0.0, (n - 1) as f64) as usize;
+    let k0 = round_exact(-d0).clamp(0.0, (n - 1) as f64) as usize;
     let t0 = d0 + k0 as f64;
     let g0 = (c * t0 * t0).exp();
     out[k0] = g0;
@@ -106,6 +194,25 @@ pub(crate) fn gauss_samples(out: &mut [f64], d0: f64, c: f64, q: f64) {
         r *= q;
         *v = g;
     }
+}
+
+/// `f64::round` (half away from zero) without the library call (the baseline x86-64 target
+/// has no rounding instruction); exactly equal to it for every input.
+#[inline]
+pub(crate) fn round_exact(x: f64) -> f64 {
+    if x.abs() >= 4.0e15 || x.is_nan() {
+        return x.round();
+    }
+    let t = x as i64 as f64; // truncated, exact
+    let frac = x - t; // exact
+    let r = if frac >= 0.5 {
+        t + 1.0
+    } else if frac <= -0.5 {
+        t - 1.0
+    } else {
+        t
+    };
+    r.copysign(x) // -0.0 for small negative x, as `round`
 }
 
 /// Round half away from zero without a library call (the baseline x86-64 target has no
@@ -150,6 +257,23 @@ mod tests {
                 );
             }
         }
+        for x in [
+            0.5,
+            -0.5,
+            1.5,
+            2.5,
+            -2.5,
+            0.49999999999999994,
+            -0.49999999999999994,
+            4503599627370495.5,
+            -7.3,
+            1e300,
+            -0.0,
+            f64::INFINITY,
+        ] {
+            assert_eq!(round_exact(x).to_bits(), x.round().to_bits(), "{x}");
+        }
+        assert!(round_exact(f64::NAN).is_nan());
         assert_eq!(round_i64(2.5), 3);
         assert_eq!(round_i64(-2.5), -3);
         assert_eq!(round_i64(-0.4), 0);
@@ -174,5 +298,56 @@ mod tests {
         assert_eq!(median(&mut [3.0, 1.0, 2.0]), 2.0);
         assert_eq!(median(&mut [4.0, 1.0, 3.0, 2.0]), 2.5);
         assert!(median(&mut []).is_nan());
+    }
+
+    /// The sorting-network median equals the middle of a sorted copy, ties and zero signs
+    /// included (the element a stable sort such as insertion sort puts there).
+    #[test]
+    fn median_matches_sorting() {
+        let mut state = 12345u64;
+        let mut next = || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            state >> 33
+        };
+        for n in 1..=30 {
+            for _ in 0..300 {
+                // Few distinct values, so that ties (and -0.0 next to 0.0) are common.
+                let v: Vec<f64> = (0..n)
+                    .map(|_| match next() % 7 {
+                        0 => 0.0,
+                        1 => -0.0,
+                        2 => 1e300,
+                        k => (k as f64 - 3.0) * 0.25 + (next() % 3) as f64,
+                    })
+                    .collect();
+                let mut sorted = v.clone();
+                sorted.sort_by(|a, b| a.partial_cmp(b).unwrap()); // stable
+                let want = if n % 2 == 1 {
+                    sorted[n / 2]
+                } else {
+                    0.5 * (sorted[n / 2 - 1] + sorted[n / 2])
+                };
+                let got = median(&mut v.clone());
+                if n <= 24 {
+                    assert_eq!(got.to_bits(), want.to_bits(), "{v:?}: {got} vs {want}");
+                } else {
+                    assert_eq!(got, want, "{v:?}");
+                }
+            }
+        }
+        // The network sorts every 0-1 input (the 0-1 principle: then it sorts any input).
+        for bits in 0u32..256 {
+            let v: Vec<f64> = (0..8).map(|k| 1.0 + ((bits >> k) & 1) as f64).collect();
+            let mut s = [0.0; 8];
+            s.copy_from_slice(&v);
+            for &(i, j) in &NET8 {
+                let (a, b) = (s[i], s[j]);
+                s[i] = a.min(b);
+                s[j] = a.max(b);
+            }
+            assert!(s.windows(2).all(|p| p[0] <= p[1]), "{v:?} -> {s:?}");
+        }
     }
 }

@@ -12,6 +12,7 @@
 
 use crate::linalg::{gauss_samples, median};
 use bostrack_core::{Image, Window};
+use rayon::prelude::*;
 
 /// One patch: the centre dot and its neighbours' positions (the centre first).
 pub(crate) struct Patch {
@@ -89,14 +90,14 @@ pub(crate) fn fit_sigma(img: &Image, sign: f64, patches: &[Patch], spacing: f64)
     }
     // Each patch's residual is normalised by its median over the grid, so that bright patches
     // do not dominate.
-    let mut table = vec![f64::INFINITY; usable.len() * k];
-    for (pi, p) in usable.iter().enumerate() {
-        for s in 0..k {
-            if let Some(r) = patch_rss(img, sign, p, half, sig(s as f64)) {
-                table[pi * k + s] = r;
-            }
-        }
-    }
+    // Each patch on its own (in parallel; the same table whatever the threads).
+    let table: Vec<f64> = usable
+        .par_iter()
+        .flat_map_iter(|p| {
+            (0..k)
+                .map(move |s| patch_rss(img, sign, p, half, sig(s as f64)).unwrap_or(f64::INFINITY))
+        })
+        .collect();
     let mut cost = vec![0.0; k];
     let mut used = 0;
     for pi in 0..usable.len() {
