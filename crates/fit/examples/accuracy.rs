@@ -111,9 +111,7 @@ fn main() {
     println!(
         "# part 3: zero noise, dot at +0.25 px in x, +0.10 px in y from a pixel centre, integrated data"
     );
-    println!(
-        "sigma  point_bias_x  point_bias_y  point_sigma/true  auto_bias_x  auto_sigma/true"
-    );
+    println!("sigma  point_bias_x  point_bias_y  point_sigma/true  auto_bias_x  auto_sigma/true");
     for s in [0.3, 0.4, 0.5, 0.6, 0.8, 1.0, 1.5, 2.0] {
         let g = Gaussian2D {
             x0: 4.25,

@@ -3,6 +3,7 @@
 
 use crate::FitError;
 use bostrack_core::{Image, Mask, NoiseModel};
+use rayon::prelude::*;
 
 /// One intensity bin of a noise estimate.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -63,49 +64,58 @@ pub fn estimate_noise_detailed(img: &Image, mask: Option<&Mask>) -> Result<Noise
         )));
     }
     let usable: Vec<bool> = (0..w * h)
+        .into_par_iter()
         .map(|k| {
             let v = img.data()[k];
             v.is_finite() && !img.is_saturated(v) && mask.is_none_or(|m| m.as_slice()[k])
         })
         .collect();
-    // separable passes: rows then columns, for the high-pass (h) and the weights (h²)
+    // separable passes: rows then columns, for the high-pass (h) and the weights (h²); rows in
+    // parallel, the residuals collected in row order (the same for any thread count)
     let hp2: [f64; 5] = HP.map(|c| c * c);
     let hp2_sum: f64 = hp2.iter().sum();
     let mut row_hp = vec![0.0; w * h];
     let mut row_lp = vec![0.0; w * h];
     let mut row_ok = vec![false; w * h];
-    for y in 0..h {
-        for x in 2..w - 2 {
-            let k = y * w + x;
-            let (mut a, mut b, mut ok) = (0.0, 0.0, true);
-            for t in 0..5 {
-                let kk = k + t - 2;
-                ok &= usable[kk];
-                let v = img.data()[kk];
-                a += HP[t] * v;
-                b += hp2[t] * v;
+    row_hp
+        .par_chunks_mut(w)
+        .zip(row_lp.par_chunks_mut(w))
+        .zip(row_ok.par_chunks_mut(w))
+        .enumerate()
+        .for_each(|(y, ((hp, lp), okr))| {
+            let data = &img.data()[y * w..(y + 1) * w];
+            let use_row = &usable[y * w..(y + 1) * w];
+            for x in 2..w - 2 {
+                let (mut a, mut b, mut ok) = (0.0, 0.0, true);
+                for t in 0..5 {
+                    let xx = x + t - 2;
+                    ok &= use_row[xx];
+                    let v = data[xx];
+                    a += HP[t] * v;
+                    b += hp2[t] * v;
+                }
+                hp[x] = a;
+                lp[x] = b;
+                okr[x] = ok;
             }
-            row_hp[k] = a;
-            row_lp[k] = b;
-            row_ok[k] = ok;
-        }
-    }
-    let mut pairs: Vec<(f64, f64)> = Vec::with_capacity(w * h);
-    for y in 2..h - 2 {
-        for x in 2..w - 2 {
-            let k = y * w + x;
-            let (mut a, mut b, mut ok) = (0.0, 0.0, true);
-            for t in 0..5 {
-                let kk = k + (t * w) - 2 * w;
-                ok &= row_ok[kk];
-                a += HP[t] * row_hp[kk];
-                b += hp2[t] * row_lp[kk];
-            }
-            if ok {
-                pairs.push((b / (hp2_sum * hp2_sum), a / HP_NORM));
-            }
-        }
-    }
+        });
+    let mut pairs: Vec<(f64, f64)> = (2..h - 2)
+        .into_par_iter()
+        .flat_map_iter(|y| {
+            let (row_hp, row_lp, row_ok) = (&row_hp, &row_lp, &row_ok);
+            (2..w - 2).filter_map(move |x| {
+                let k = y * w + x;
+                let (mut a, mut b, mut ok) = (0.0, 0.0, true);
+                for t in 0..5 {
+                    let kk = k + (t * w) - 2 * w;
+                    ok &= row_ok[kk];
+                    a += HP[t] * row_hp[kk];
+                    b += hp2[t] * row_lp[kk];
+                }
+                ok.then(|| (b / (hp2_sum * hp2_sum), a / HP_NORM))
+            })
+        })
+        .collect();
     let bins = bin_robust(&mut pairs, |rs| {
         let med = median_abs(rs);
         (1.482_602_218_505_602 * med).powi(2)
@@ -146,6 +156,7 @@ pub fn noise_from_stack_detailed(
     }
     check_mask(first, mask)?;
     let usable: Vec<bool> = (0..w * h)
+        .into_par_iter()
         .map(|k| {
             mask.is_none_or(|m| m.as_slice()[k])
                 && stack.iter().all(|img| {
@@ -161,7 +172,7 @@ pub fn noise_from_stack_detailed(
         ));
     }
     let frame_means: Vec<f64> = stack
-        .iter()
+        .par_iter()
         .map(|img| {
             img.data()
                 .iter()
@@ -174,22 +185,25 @@ pub fn noise_from_stack_detailed(
         .collect();
     let grand = frame_means.iter().sum::<f64>() / stack.len() as f64;
     let kf = stack.len() as f64;
-    let mut pairs = Vec::with_capacity(n_used);
-    for k in 0..w * h {
-        if !usable[k] {
-            continue;
-        }
-        let mut s = 0.0;
-        let mut s2 = 0.0;
-        for (img, fm) in stack.iter().zip(&frame_means) {
-            let v = img.data()[k] - (fm - grand);
-            s += v;
-            s2 += v * v;
-        }
-        let mean = s / kf;
-        let var = ((s2 - s * mean) / (kf - 1.0)).max(0.0);
-        pairs.push((mean, var));
-    }
+    // per-pixel temporal mean and variance, rows in parallel, collected in pixel order
+    let mut pairs: Vec<(f64, f64)> = (0..h)
+        .into_par_iter()
+        .flat_map_iter(|y| {
+            let (usable, frame_means) = (&usable, &frame_means);
+            (y * w..(y + 1) * w).filter(|&k| usable[k]).map(move |k| {
+                let mut s = 0.0;
+                let mut s2 = 0.0;
+                for (img, fm) in stack.iter().zip(frame_means) {
+                    let v = img.data()[k] - (fm - grand);
+                    s += v;
+                    s2 += v * v;
+                }
+                let mean = s / kf;
+                let var = ((s2 - s * mean) / (kf - 1.0)).max(0.0);
+                (mean, var)
+            })
+        })
+        .collect();
     let nu = kf - 1.0;
     let chi2_median = (1.0 - 2.0 / (9.0 * nu)).powi(3); // median of χ²_ν / ν
     let bins = bin_robust(&mut pairs, |vs| median(vs) / chi2_median)?;
@@ -221,7 +235,9 @@ fn bin_robust(
             20 * N_BINS
         )));
     }
-    pairs.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+    // stable: ties in the mean (many in a stack's means) keep the pixel order, so the bins are
+    // the same for any thread count and do not sort a tie group by its values
+    pairs.par_sort_by(|a, b| a.0.total_cmp(&b.0));
     let n = pairs.len();
     let mut vals = Vec::with_capacity(n / N_BINS + 1);
     let mut bins = Vec::with_capacity(N_BINS);
