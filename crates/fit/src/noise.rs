@@ -99,11 +99,15 @@ pub fn estimate_noise_detailed(img: &Image, mask: Option<&Mask>) -> Result<Noise
                 okr[x] = ok;
             }
         });
-    let mut pairs: Vec<(f64, f64)> = (2..h - 2)
-        .into_par_iter()
-        .flat_map_iter(|y| {
-            let (row_hp, row_lp, row_ok) = (&row_hp, &row_lp, &row_ok);
-            (2..w - 2).filter_map(move |x| {
+    // residual and matching mean per pixel (NaN where not usable), rows in parallel, then the
+    // usable ones in pixel order
+    let mut per_pixel = vec![(f64::NAN, f64::NAN); w * h];
+    per_pixel
+        .par_chunks_mut(w)
+        .enumerate()
+        .filter(|(y, _)| (2..h - 2).contains(y))
+        .for_each(|(y, out)| {
+            for (x, o) in out.iter_mut().enumerate().take(w - 2).skip(2) {
                 let k = y * w + x;
                 let (mut a, mut b, mut ok) = (0.0, 0.0, true);
                 for t in 0..5 {
@@ -112,10 +116,12 @@ pub fn estimate_noise_detailed(img: &Image, mask: Option<&Mask>) -> Result<Noise
                     a += HP[t] * row_hp[kk];
                     b += hp2[t] * row_lp[kk];
                 }
-                ok.then(|| (b / (hp2_sum * hp2_sum), a / HP_NORM))
-            })
-        })
-        .collect();
+                if ok {
+                    *o = (b / (hp2_sum * hp2_sum), a / HP_NORM);
+                }
+            }
+        });
+    let mut pairs: Vec<(f64, f64)> = per_pixel.into_iter().filter(|p| !p.0.is_nan()).collect();
     let bins = bin_robust(&mut pairs, |rs| {
         let med = median_abs(rs);
         (1.482_602_218_505_602 * med).powi(2)
@@ -185,25 +191,31 @@ pub fn noise_from_stack_detailed(
         .collect();
     let grand = frame_means.iter().sum::<f64>() / stack.len() as f64;
     let kf = stack.len() as f64;
-    // per-pixel temporal mean and variance, rows in parallel, collected in pixel order
-    let mut pairs: Vec<(f64, f64)> = (0..h)
-        .into_par_iter()
-        .flat_map_iter(|y| {
-            let (usable, frame_means) = (&usable, &frame_means);
-            (y * w..(y + 1) * w).filter(|&k| usable[k]).map(move |k| {
+    // per-pixel temporal mean and variance (NaN where not usable), rows in parallel, then the
+    // usable ones in pixel order
+    let mut per_pixel = vec![(f64::NAN, f64::NAN); w * h];
+    per_pixel
+        .par_chunks_mut(w)
+        .enumerate()
+        .for_each(|(y, out)| {
+            for (x, o) in out.iter_mut().enumerate() {
+                let k = y * w + x;
+                if !usable[k] {
+                    continue;
+                }
                 let mut s = 0.0;
                 let mut s2 = 0.0;
-                for (img, fm) in stack.iter().zip(frame_means) {
+                for (img, fm) in stack.iter().zip(&frame_means) {
                     let v = img.data()[k] - (fm - grand);
                     s += v;
                     s2 += v * v;
                 }
                 let mean = s / kf;
                 let var = ((s2 - s * mean) / (kf - 1.0)).max(0.0);
-                (mean, var)
-            })
-        })
-        .collect();
+                *o = (mean, var);
+            }
+        });
+    let mut pairs: Vec<(f64, f64)> = per_pixel.into_iter().filter(|p| !p.0.is_nan()).collect();
     let nu = kf - 1.0;
     let chi2_median = (1.0 - 2.0 / (9.0 * nu)).powi(3); // median of χ²_ν / ν
     let bins = bin_robust(&mut pairs, |vs| median(vs) / chi2_median)?;
@@ -235,9 +247,9 @@ fn bin_robust(
             20 * N_BINS
         )));
     }
-    // stable: ties in the mean (many in a stack's means) keep the pixel order, so the bins are
-    // the same for any thread count and do not sort a tie group by its values
-    pairs.par_sort_by(|a, b| a.0.total_cmp(&b.0));
+    // (sequential: the order of tied means, and so the bins, depend only on the input order,
+    // which is the pixel order for any thread count)
+    pairs.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
     let n = pairs.len();
     let mut vals = Vec::with_capacity(n / N_BINS + 1);
     let mut bins = Vec::with_capacity(N_BINS);
