@@ -67,7 +67,7 @@ mod start;
 pub mod study;
 
 pub use config::{AUTO_SIGMA, Estimator, FitConfig, FitSampling, Neighbours, Solver};
-pub use dots::{fit_dots, refit_dots};
+pub use dots::{NeighbourTails, TAILS_MAX_SHIFT, fit_dots, refit_dots};
 pub use error::FitError;
 pub use fit::{Fitter, WindowSamples, fit_window};
 pub use noise::{

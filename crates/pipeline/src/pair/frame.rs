@@ -21,17 +21,20 @@ pub(crate) struct Matched {
     pub matches: Matches,
 }
 
-/// Track the reference seeds into `img`, fit them, match the fits to the reference fits.
-/// Stage times go to `times` (detect, fit, match) when given.
-pub(crate) fn track_fit_match_timed(
+/// Neighbour tails rendered once for the images of a no-flow stack, and the shift (px) of the
+/// reference fits they were rendered at.
+pub(crate) struct NoFlow<'a> {
+    pub tails: &'a bostrack_fit::NeighbourTails,
+    pub at: [f64; 2],
+}
+
+/// Tracks the reference seeds into `img`.
+pub(crate) fn track_image(
     ctx: &ReferenceContext,
     plan: &Plan,
     img: &Image,
     path: &Path,
-    mut times: Option<&mut StageTimes>,
-    no_flow: bool,
-) -> Result<Matched, PipelineError> {
-    let mut sw = Stopwatch::start();
+) -> Result<bostrack_detect::Detection, PipelineError> {
     let (w, h) = ctx.size;
     if (img.width(), img.height()) != (w, h) {
         return Err(PipelineError::SizeMismatch {
@@ -41,30 +44,67 @@ pub(crate) fn track_fit_match_timed(
             got: size_text(img.width(), img.height()),
         });
     }
-    let mask = ctx.mask.as_ref();
-    let tracked = bostrack_detect::track(img, mask, &ctx.detection, &plan.detect).map_err(|e| {
+    bostrack_detect::track(img, ctx.mask.as_ref(), &ctx.detection, &plan.detect).map_err(|e| {
         PipelineError::Detect {
             path: path.to_path_buf(),
             source: e,
         }
-    })?;
-    if let Some(t) = times.as_deref_mut() {
-        t.push("detect", sw.lap());
-    }
-    // the median displacement of the tracked dots (track keeps the reference's seed order)
+    })
+}
+
+/// The median displacement of the tracked dots from the reference seeds (track keeps the
+/// reference's seed order), per axis; `None` without a dot found in both.
+pub(crate) fn median_shift(
+    ctx: &ReferenceContext,
+    tracked: &bostrack_detect::Detection,
+) -> [Option<f64>; 2] {
     let found = |f: &DotFlags| !f.contains(DotFlags::MISSING);
-    let init = median2(
+    median2(
         ctx.detection
             .seeds
             .iter()
             .zip(&tracked.seeds)
             .filter(|(r, g)| found(&r.flags) && found(&g.flags))
             .map(|(r, g)| [g.centre[0] - r.centre[0], g.centre[1] - r.centre[1]]),
-    );
-    let fits = if no_flow {
+    )
+}
+
+/// Track the reference seeds into `img`, fit them, match the fits to the reference fits.
+/// Stage times go to `times` (detect, fit, match) when given.
+pub(crate) fn track_fit_match_timed(
+    ctx: &ReferenceContext,
+    plan: &Plan,
+    img: &Image,
+    path: &Path,
+    mut times: Option<&mut StageTimes>,
+) -> Result<Matched, PipelineError> {
+    let mut sw = Stopwatch::start();
+    let tracked = track_image(ctx, plan, img, path)?;
+    if let Some(t) = times.as_deref_mut() {
+        t.push("detect", sw.lap());
+    }
+    fit_match_timed(ctx, plan, img, path, &tracked, times, None)
+}
+
+/// Fits the tracked seeds in `img` and matches the fits to the reference fits; `no_flow` for
+/// the images of the no-flow stack (one pass from the reference fits, see below).
+pub(crate) fn fit_match_timed(
+    ctx: &ReferenceContext,
+    plan: &Plan,
+    img: &Image,
+    path: &Path,
+    tracked: &bostrack_detect::Detection,
+    mut times: Option<&mut StageTimes>,
+    no_flow: Option<NoFlow>,
+) -> Result<Matched, PipelineError> {
+    let mut sw = Stopwatch::start();
+    let mask = ctx.mask.as_ref();
+    let init = median_shift(ctx, tracked);
+    let fits = if let Some(nf) = no_flow {
         // a no-flow image is the reference moved by the camera's common shift: one pass from
         // the reference fits moved by the tracked dots' median displacement (neighbours
-        // subtracted from those), instead of moment estimates and two passes
+        // subtracted from those; their tails as rendered once for the stack while this image's
+        // shift is within TAILS_MAX_SHIFT of theirs), instead of moment estimates and two passes
         let [sx, sy] = init.map(|v| v.unwrap_or(0.0));
         let prior: Vec<_> = ctx
             .fits
@@ -76,7 +116,17 @@ pub(crate) fn track_fit_match_timed(
                 p
             })
             .collect();
-        bostrack_fit::refit_dots(img, mask, &tracked.seeds, &plan.fit, &ctx.noise, &prior)
+        let small =
+            (sx - nf.at[0]).abs().max((sy - nf.at[1]).abs()) <= bostrack_fit::TAILS_MAX_SHIFT;
+        bostrack_fit::refit_dots(
+            img,
+            mask,
+            &tracked.seeds,
+            &plan.fit,
+            &ctx.noise,
+            &prior,
+            small.then_some(nf.tails),
+        )
     } else {
         bostrack_fit::fit_dots(img, mask, &tracked.seeds, &plan.fit, &ctx.noise)
     }
@@ -117,15 +167,6 @@ pub(crate) fn track_fit_match_timed(
     })
 }
 
-pub(crate) fn track_fit_match(
-    ctx: &ReferenceContext,
-    plan: &Plan,
-    img: &Image,
-    path: &Path,
-) -> Result<Matched, PipelineError> {
-    track_fit_match_timed(ctx, plan, img, path, None, true)
-}
-
 /// Processes one gradient frame: reads it, then [`process_image`]. `plan` must be the plan
 /// the context was prepared from.
 pub fn process_frame(
@@ -159,7 +200,7 @@ pub fn process_image(
     } else {
         frame.to_path_buf()
     };
-    let m = track_fit_match_timed(ctx, plan, img, &path, Some(&mut times), false)?;
+    let m = track_fit_match_timed(ctx, plan, img, &path, Some(&mut times))?;
     let mut sw = Stopwatch::start();
     let n = ctx.fits.len();
     let both =

@@ -308,12 +308,58 @@ impl ReferenceContext {
     /// Tracks, fits and matches every stack image, then the per-dot scatter (u_ref).
     fn fit_stack(&mut self, plan: &Plan, stack: &[Image]) -> Result<(), PipelineError> {
         let mut sw = Stopwatch::start();
-        let per_image = stack
+        // track every stack image, then render the reference dots' neighbour tails once, at
+        // the stack's median shift from the reference (the images differ from it by the
+        // camera's jitter, far below TAILS_MAX_SHIFT, so no image renders them again)
+        let tracked = stack
             .par_iter()
             .enumerate()
             .map(|(k, img)| {
                 let path = image_path(img, &format!("stack image {k}"));
-                let m = super::frame::track_fit_match(self, plan, img, &path)?;
+                super::frame::track_image(self, plan, img, &path)
+            })
+            .collect::<Result<Vec<_>, PipelineError>>()?;
+        let shifts: Vec<[f64; 2]> = tracked
+            .iter()
+            .map(|t| super::frame::median_shift(self, t).map(|v| v.unwrap_or(0.0)))
+            .collect();
+        let at = median2(shifts.iter().copied()).map(|v| v.unwrap_or(0.0));
+        let moved: Vec<DotFit> = self
+            .fits
+            .iter()
+            .map(|f| {
+                let mut p = *f;
+                p.params.x0 += at[0];
+                p.params.y0 += at[1];
+                p
+            })
+            .collect();
+        let tails = bostrack_fit::NeighbourTails::new(
+            &moved,
+            &self.detection.seeds,
+            &plan.fit,
+            self.size.0,
+            self.size.1,
+        );
+        let per_image = stack
+            .par_iter()
+            .zip(&tracked)
+            .enumerate()
+            .map(|(k, (img, tracked))| {
+                let path = image_path(img, &format!("stack image {k}"));
+                let no_flow = super::frame::NoFlow {
+                    tails: &tails,
+                    at,
+                };
+                let m = super::frame::fit_match_timed(
+                    self,
+                    plan,
+                    img,
+                    &path,
+                    tracked,
+                    None,
+                    Some(no_flow),
+                )?;
                 let fitted = self.fits.iter().filter(|d| usable(d)).count();
                 let matched = m
                     .pairs
