@@ -66,7 +66,12 @@ pub fn fit_dots(
         .collect();
     for pass in 0..cfg.neighbour_passes {
         let last = pass + 1 == cfg.neighbour_passes;
-        prev = subtract_pass(img, mask, seeds, cfg, noise, &prev, pass == 0, last, None);
+        let kind = SubtractPass {
+            first: pass == 0,
+            last,
+            warm: false,
+        };
+        prev = subtract_pass(img, mask, seeds, cfg, noise, &prev, kind, None);
     }
     Ok(prev)
 }
@@ -118,7 +123,18 @@ pub fn refit_dots(
     }
     if cfg.neighbours == Neighbours::Subtract && cfg.estimator == Estimator::Lsg {
         return Ok(subtract_pass(
-            img, mask, seeds, cfg, noise, prior, true, true, tails,
+            img,
+            mask,
+            seeds,
+            cfg,
+            noise,
+            prior,
+            SubtractPass {
+                first: true,
+                last: true,
+                warm: true,
+            },
+            tails,
         ));
     }
     Ok(seeds
@@ -134,6 +150,17 @@ pub fn refit_dots(
         .collect())
 }
 
+/// Which pass [`subtract_pass`] is: `first` (`prev` holds moment estimates: every dot is
+/// fitted), `last` (the fits are final: full tolerance and the weights check), `warm` (`prev`
+/// are least-squares fits of the same dots in an image of the same scene: the weights at the
+/// start are right, no check).
+#[derive(Clone, Copy)]
+struct SubtractPass {
+    first: bool,
+    last: bool,
+    warm: bool,
+}
+
 /// One block-Jacobi pass: every dot refitted after subtracting its neighbours' fits of `prev`
 /// (`first`: `prev` holds the moment estimates, so every dot is fitted even without neighbours).
 fn subtract_pass(
@@ -143,10 +170,10 @@ fn subtract_pass(
     cfg: &FitConfig,
     noise: &NoiseModel,
     prev: &[DotFit],
-    first: bool,
-    last: bool,
+    kind: SubtractPass,
     tails: Option<&NeighbourTails>,
 ) -> Vec<DotFit> {
+    let SubtractPass { first, last, warm } = kind;
     // every neighbour's rendering parameters once per pass, not once per window it reaches
     let models: Vec<Option<NeighbourModel>> = prev
         .par_iter()
@@ -160,6 +187,7 @@ fn subtract_pass(
             || {
                 let mut f = Fitter::new(cfg);
                 f.intermediate = !last;
+                f.warm = warm;
                 (f, Vec::new())
             },
             |(f, near), (i, s)| {

@@ -61,6 +61,8 @@ pub struct Fitter {
     pub(crate) ws: Workspace,
     /// An intermediate fit (refitted later from its solution): no reweighting to the solution.
     pub(crate) intermediate: bool,
+    /// The start is a fit of the same dot (weights there are right): no reweighting check.
+    pub(crate) warm: bool,
 }
 
 impl Fitter {
@@ -70,6 +72,7 @@ impl Fitter {
             kind: Kind::from_model(cfg.model),
             ws: Workspace::default(),
             intermediate: false,
+            warm: false,
         }
     }
 
@@ -325,7 +328,7 @@ impl Fitter {
                 bounds,
                 self.cfg.max_iterations,
                 tolerance,
-                !self.intermediate,
+                !(self.intermediate || self.warm),
             ),
             Solver::LmCrate => solve_lm_crate(
                 &mut self.ws,
