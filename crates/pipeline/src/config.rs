@@ -244,16 +244,13 @@ impl Quantities {
     }
 }
 
-/// `[output]`: what a run writes, and where.
+/// `[output]`: what a run writes, and where. Every frame always gets its `dots.csv` and
+/// `summary.json` (they also mark the frame as complete for reruns and `bostrack merge`).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct OutputConfig {
     /// Output folder (relative to the configuration file's folder).
     pub dir: PathBuf,
-    /// Per-dot CSV files.
-    pub csv: bool,
-    /// Summary file.
-    pub summary: bool,
     /// What is computed per dot (each level includes the ones before it).
     pub quantities: Quantities,
     /// Figures to draw.
@@ -269,8 +266,6 @@ impl Default for OutputConfig {
     fn default() -> Self {
         OutputConfig {
             dir: PathBuf::from("out"),
-            csv: true,
-            summary: true,
             quantities: Quantities::Uncertainty,
             figures: Figure::ALL.to_vec(),
             figure_formats: vec![FigureFormat::Png],

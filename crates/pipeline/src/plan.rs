@@ -24,8 +24,6 @@ pub enum ReferenceImage {
 pub struct OutputPlan {
     /// Output folder (resolved; may not exist yet).
     pub dir: PathBuf,
-    pub csv: bool,
-    pub summary: bool,
     /// Figures to draw, without duplicates, in the order written.
     pub figures: Vec<Figure>,
     /// File formats of every figure, without duplicates.
@@ -123,8 +121,6 @@ impl Plan {
 
         let output = OutputPlan {
             dir: base.join(&cfg.output.dir),
-            csv: cfg.output.csv,
-            summary: cfg.output.summary,
             figures: cfg.output.figures.clone(),
             figure_formats: cfg.output.figure_formats.clone(),
             overwrite: cfg.output.overwrite,

@@ -247,11 +247,6 @@ pub(crate) const SECTIONS: &[SectionDoc] = &[
         doc: "What a run writes.",
         keys: &[
             key("dir", "Output folder, relative to the folder of this file."),
-            key("csv", "Write one per-dot CSV file per gradient image."),
-            key(
-                "summary",
-                "Write a summary (counts, medians, flags) of the run.",
-            ),
             key(
                 "quantities",
                 "What is computed per dot, each level including the ones before it: \"displacement\",\n\

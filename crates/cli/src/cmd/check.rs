@@ -39,8 +39,6 @@ pub(crate) fn run(args: CheckArgs) -> anyhow::Result<Outcome> {
         "mask": plan.mask,
         "output": {
             "dir": plan.output.dir,
-            "csv": plan.output.csv,
-            "summary": plan.output.summary,
             "figures": figures,
             "overwrite": plan.output.overwrite,
         },
