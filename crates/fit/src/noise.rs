@@ -247,9 +247,10 @@ fn bin_robust(
             20 * N_BINS
         )));
     }
-    // (sequential: the order of tied means, and so the bins, depend only on the input order,
-    // which is the pixel order for any thread count)
-    pairs.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+    // rayon's parallel pattern-defeating quicksort: deterministic (its pivots do not depend on
+    // the thread count), so the order of tied means, and the bins, depend only on the input
+    // order, which is the pixel order (test `noise_estimates_do_not_depend_on_threads`)
+    pairs.par_sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
     let n = pairs.len();
     let mut vals = Vec::with_capacity(n / N_BINS + 1);
     let mut bins = Vec::with_capacity(N_BINS);

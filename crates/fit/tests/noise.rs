@@ -114,3 +114,28 @@ fn masked_pixels_are_not_used_and_bad_inputs_are_errors() {
     let tiny = Image::from_fn(4, 40, |_, _| 0.0);
     assert!(estimate_noise(&tiny, None).is_err());
 }
+
+/// The noise estimates are the same, to the last bit, on 1 and on 2 threads (the stack's means
+/// hold many ties, whose order in the sort decides the bins).
+#[test]
+fn noise_estimates_do_not_depend_on_threads() {
+    let cfg = SceneConfig {
+        width: 700,
+        height: 700,
+        ..scene(21)
+    };
+    let imgs = stack(&cfg, 4).unwrap();
+    let on = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(|| {
+            (
+                estimate_noise(&imgs[0], None).unwrap(),
+                noise_from_stack(&imgs, None).unwrap(),
+            )
+        })
+    };
+    assert_eq!(on(1), on(2));
+}
