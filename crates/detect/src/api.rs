@@ -781,6 +781,28 @@ pub fn track(
     };
     let q: Vec<[f64; 2]> = seeds.iter().map(|t| t.centre).collect();
     let disp = |p: &Peak, k: usize| [p.x - q[k][0], p.y - q[k][1]];
+    // The median displacement of the peaks in `found` at seed k's 3x3 index neighbours, or its
+    // 5x5 ones when fewer than `min` of the 3x3 have one; None when the 5x5 have fewer too.
+    type Bufs = (Vec<usize>, Vec<f64>, Vec<f64>);
+    let neighbour_median =
+        |k: usize, found: &[Option<Peak>], min: usize, (nb, tx, ty): &mut Bufs| {
+            for r in 1..=2 {
+                neighbours(k, r, nb);
+                tx.clear();
+                ty.clear();
+                for &o in nb.iter() {
+                    if let Some(p) = found[o] {
+                        let d = disp(&p, o);
+                        tx.push(d[0]);
+                        ty.push(d[1]);
+                    }
+                }
+                if tx.len() >= min {
+                    return Some([median(tx), median(ty)]);
+                }
+            }
+            None
+        };
 
     // Pass 1: no predictor.
     let mut buf = Vec::new();
@@ -835,27 +857,10 @@ pub fn track(
                     Vec::with_capacity(24),
                 )
             },
-            |(nb, tx, ty), k| {
+            |bufs, k| {
                 let p = first[k]?;
-                // The 3x3 index neighbours, or the 5x5 ones when fewer than three have a peak.
-                for r in 1..=2 {
-                    neighbours(k, r, nb);
-                    tx.clear();
-                    ty.clear();
-                    for &o in nb.iter() {
-                        if let Some(pq) = first[o] {
-                            let d = disp(&pq, o);
-                            tx.push(d[0]);
-                            ty.push(d[1]);
-                        }
-                    }
-                    if tx.len() >= 3 {
-                        break;
-                    }
-                }
-                if tx.len() >= 3 {
+                if let Some(med) = neighbour_median(k, &first, 3, bufs) {
                     let d = disp(&p, k);
-                    let med = [median(tx), median(ty)];
                     if dist2(d, med) < (0.15 * s).powi(2) {
                         return Some((norm(d), k));
                     }
@@ -1030,27 +1035,9 @@ pub fn track(
                     Vec::with_capacity(24),
                 )
             },
-            |(nb, tx, ty), k| {
-                for r in 1..=2 {
-                    neighbours(k, r, nb);
-                    tx.clear();
-                    ty.clear();
-                    for &o in nb.iter() {
-                        if let Some(p) = result[o] {
-                            let d = disp(&p, o);
-                            tx.push(d[0]);
-                            ty.push(d[1]);
-                        }
-                    }
-                    if tx.len() >= 2 {
-                        break;
-                    }
-                }
-                let pd = if tx.len() >= 2 {
-                    [median(tx), median(ty)]
-                } else {
-                    pred_disp[k].unwrap_or([0.0, 0.0])
-                };
+            |bufs, k| {
+                let pd = neighbour_median(k, &result, 2, bufs)
+                    .unwrap_or_else(|| pred_disp[k].unwrap_or([0.0, 0.0]));
                 // A dot the reference did not see must pass a stricter test when found by a
                 // search.
                 let peak_extra = if seeds[k].flags.contains(DotFlags::MISSING) {
