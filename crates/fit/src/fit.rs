@@ -2,8 +2,8 @@
 
 use crate::config::{AUTO_SIGMA, Estimator, FitConfig, FitSampling, Solver};
 use crate::eval::{
-    IB, IX, IY, Kind, Theta, Workspace, conditional_sigma, gaussian_from_theta, pixel_blur,
-    pixel_unblur, theta_from_gaussian,
+    IB, IU, IV, IX, IY, Kind, Theta, Workspace, conditional_sigma, gaussian_from_theta, gl_order,
+    pixel_blur, pixel_unblur, theta_from_gaussian,
 };
 use crate::lmcrate::solve_lm_crate;
 use crate::solver::{Bounds, Outcome, position_bound, solve_fast};
@@ -318,7 +318,9 @@ impl Fitter {
         sampling: Sampling,
     ) -> Outcome {
         let tolerance = self.tolerance();
-        match self.cfg.solver {
+        // the Gauss-Legendre order of the integrated model, fixed for the solve from its start
+        self.ws.gl_n = gl_order(theta0[IU].min(theta0[IV]).exp());
+        let out = match self.cfg.solver {
             Solver::Fast => solve_fast(
                 &mut self.ws,
                 theta0,
@@ -340,7 +342,9 @@ impl Fitter {
                 self.cfg.max_iterations,
                 self.cfg.tolerance,
             ),
-        }
+        };
+        self.ws.gl_n = 0;
+        out
     }
 
     /// The convergence tolerance: the configured one, or for an intermediate fit (a neighbour

@@ -3,8 +3,8 @@
 //! checked and timed against.
 
 use crate::eval::{
-    IA, IB, IU, IV, IX, IY, Kind, Shape, Theta, Workspace, evaluate, fill_phi, gl_order,
-    normal_equations, set_weights,
+    IA, IB, IX, IY, Kind, Shape, Theta, Workspace, evaluate, fill_phi, normal_equations,
+    set_weights,
 };
 use crate::solver::{Bounds, Outcome};
 use bostrack_core::{FitStatus, NoiseModel};
@@ -98,31 +98,6 @@ impl LeastSquaresProblem<f64, Dyn, Dyn> for Problem<'_> {
 /// start; with signal-dependent noise the fit is repeated once with the weights at the first
 /// solution (iteratively reweighted least squares).
 pub(crate) fn solve_lm_crate(
-    ws: &mut Workspace,
-    theta0: Theta,
-    kind: Kind,
-    sampling: Sampling,
-    noise: &NoiseModel,
-    bounds: &Bounds,
-    max_iterations: u32,
-    tolerance: f64,
-) -> Outcome {
-    ws.gl_n = gl_order(theta0[IU].min(theta0[IV]).exp());
-    let out = lm_crate_inner(
-        ws,
-        theta0,
-        kind,
-        sampling,
-        noise,
-        bounds,
-        max_iterations,
-        tolerance,
-    );
-    ws.gl_n = 0;
-    out
-}
-
-fn lm_crate_inner(
     ws: &mut Workspace,
     theta0: Theta,
     kind: Kind,

@@ -2,8 +2,8 @@
 //! pixels, fixed-size arrays, no allocation.
 
 use crate::eval::{
-    IA, IT, IU, IV, IX, IY, Kind, Pass, Theta, Workspace, evaluate, gl_order, normal_equations,
-    set_weights, weight_change,
+    IA, IT, IU, IV, IX, IY, Kind, Pass, Theta, Workspace, evaluate, normal_equations, set_weights,
+    weight_change,
 };
 use bostrack_core::{FitStatus, NoiseModel};
 use bostrack_model::Sampling;
@@ -211,7 +211,6 @@ pub(crate) fn solve_fast(
     tolerance: f64,
     reweight: bool,
 ) -> Outcome {
-    ws.gl_n = gl_order(theta0[IU].min(theta0[IV]).exp());
     set_weights(ws, &theta0, sampling, noise);
     let mut out = lm_loop(
         ws,
@@ -257,7 +256,6 @@ pub(crate) fn solve_fast(
             ..again
         };
     }
-    ws.gl_n = 0;
     out
 }
 
