@@ -83,39 +83,45 @@ pub(crate) fn track_fit_match_timed(
     if let Some(t) = times.as_deref_mut() {
         t.push("detect", sw.lap());
     }
-    fit_match_timed(ctx, plan, img, path, &tracked, times, None)
+    let shift = median_shift(ctx, &tracked);
+    fit_match_timed(ctx, plan, img, path, &tracked, shift, times, None)
 }
 
-/// Fits the tracked seeds in `img` and matches the fits to the reference fits; `no_flow` for
-/// the images of the no-flow stack (one pass from the reference fits, see below).
+/// `fits` with every centre moved by `shift` (px).
+pub(crate) fn moved(fits: &[DotFit], shift: [f64; 2]) -> Vec<DotFit> {
+    fits.iter()
+        .map(|f| {
+            let mut p = *f;
+            p.params.x0 += shift[0];
+            p.params.y0 += shift[1];
+            p
+        })
+        .collect()
+}
+
+/// Fits the tracked seeds in `img` and matches the fits to the reference fits; `init` is the
+/// tracked dots' [`median_shift`]; `no_flow` for the images of the no-flow stack (one pass from
+/// the reference fits, see below).
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn fit_match_timed(
     ctx: &ReferenceContext,
     plan: &Plan,
     img: &Image,
     path: &Path,
     tracked: &bostrack_detect::Detection,
+    init: [Option<f64>; 2],
     mut times: Option<&mut StageTimes>,
     no_flow: Option<NoFlow>,
 ) -> Result<Matched, PipelineError> {
     let mut sw = Stopwatch::start();
     let mask = ctx.mask.as_ref();
-    let init = median_shift(ctx, tracked);
     let fits = if let Some(nf) = no_flow {
         // a no-flow image is the reference moved by the camera's common shift: one pass from
         // the reference fits moved by the tracked dots' median displacement (neighbours
         // subtracted from those; their tails as rendered once for the stack while this image's
         // shift is within TAILS_MAX_SHIFT of theirs), instead of moment estimates and two passes
         let [sx, sy] = init.map(|v| v.unwrap_or(0.0));
-        let prior: Vec<_> = ctx
-            .fits
-            .iter()
-            .map(|f| {
-                let mut p = *f;
-                p.params.x0 += sx;
-                p.params.y0 += sy;
-                p
-            })
-            .collect();
+        let prior = moved(&ctx.fits, [sx, sy]);
         let small =
             (sx - nf.at[0]).abs().max((sy - nf.at[1]).abs()) <= bostrack_fit::TAILS_MAX_SHIFT;
         bostrack_fit::refit_dots(

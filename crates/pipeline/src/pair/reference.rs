@@ -319,23 +319,14 @@ impl ReferenceContext {
                 super::frame::track_image(self, plan, img, &path)
             })
             .collect::<Result<Vec<_>, PipelineError>>()?;
-        let shifts: Vec<[f64; 2]> = tracked
+        let shifts: Vec<[Option<f64>; 2]> = tracked
             .iter()
-            .map(|t| super::frame::median_shift(self, t).map(|v| v.unwrap_or(0.0)))
+            .map(|t| super::frame::median_shift(self, t))
             .collect();
-        let at = median2(shifts.iter().copied()).map(|v| v.unwrap_or(0.0));
-        let moved: Vec<DotFit> = self
-            .fits
-            .iter()
-            .map(|f| {
-                let mut p = *f;
-                p.params.x0 += at[0];
-                p.params.y0 += at[1];
-                p
-            })
-            .collect();
+        let at =
+            median2(shifts.iter().map(|s| s.map(|v| v.unwrap_or(0.0)))).map(|v| v.unwrap_or(0.0));
         let tails = bostrack_fit::NeighbourTails::new(
-            &moved,
+            &super::frame::moved(&self.fits, at),
             &self.detection.seeds,
             &plan.fit,
             self.size.0,
@@ -343,9 +334,9 @@ impl ReferenceContext {
         );
         let per_image = stack
             .par_iter()
-            .zip(&tracked)
+            .zip(tracked.par_iter().zip(&shifts))
             .enumerate()
-            .map(|(k, (img, tracked))| {
+            .map(|(k, (img, (tracked, &shift)))| {
                 let path = image_path(img, &format!("stack image {k}"));
                 let no_flow = super::frame::NoFlow {
                     tails: &tails,
@@ -357,6 +348,7 @@ impl ReferenceContext {
                     img,
                     &path,
                     tracked,
+                    shift,
                     None,
                     Some(no_flow),
                 )?;
