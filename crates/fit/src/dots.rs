@@ -301,6 +301,8 @@ impl NeighbourTails {
             .map(|f| NeighbourModel::new(f, cfg.sampling))
             .collect();
         let index = NeighbourIndex::new(&models);
+        // (a prior of another length: no tails, every window is rendered by `refit_dots`)
+        let same_length = prior.len() == seeds.len();
         let per_seed: Vec<(Option<Window>, Vec<f64>, u32)> = seeds
             .par_iter()
             .enumerate()
@@ -310,7 +312,7 @@ impl NeighbourTails {
                     let Some(win) = s.window.clip(width, height) else {
                         return (None, Vec::new(), 0);
                     };
-                    if s.flags.contains(DotFlags::MISSING) || prior.len() != seeds.len() {
+                    if s.flags.contains(DotFlags::MISSING) || !same_length {
                         return (None, Vec::new(), 0);
                     }
                     f.ws.resize(win.x, win.y, win.width, win.height);
