@@ -2,28 +2,14 @@
 //! temporary folders: failures recorded, determinism across thread counts, resuming after a
 //! kill, shards merged equal to one run, refusal of a folder of another configuration.
 
+mod common;
+use common::*;
+
 use serde_json::Value;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
-
-fn bostrack(args: &[&str], cwd: &Path) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_bostrack"))
-        .args(args)
-        .current_dir(cwd)
-        .env_remove("SLURM_CPUS_PER_TASK")
-        .output()
-        .expect("the binary runs")
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
-
-fn code(o: &Output) -> i32 {
-    o.status.code().expect("exited normally")
-}
 
 const FRAMES: usize = 20;
 

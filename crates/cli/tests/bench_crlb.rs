@@ -1,38 +1,13 @@
 //! `bostrack bench` and `bostrack crlb`, driving the real binary in temporary folders.
 
+mod common;
+use common::*;
+
 use bostrack_fit::study::{STUDY_CSV_COLUMNS, study_scenes};
 use serde_json::Value;
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
-
-fn bostrack(args: &[&str], cwd: &Path) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_bostrack"))
-        .args(args)
-        .current_dir(cwd)
-        .env_remove("SLURM_CPUS_PER_TASK")
-        .output()
-        .expect("the binary runs")
-}
-
-fn stdout(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stdout).into_owned()
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
-
-fn code(o: &Output) -> i32 {
-    o.status.code().expect("exited normally")
-}
-
-fn repo_root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../..")
-        .canonicalize()
-        .unwrap()
-}
+use std::process::Output;
 
 fn example_setup() -> PathBuf {
     repo_root().join("testdata/crlb-setup.toml")

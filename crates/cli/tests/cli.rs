@@ -1,38 +1,12 @@
 //! Drives the real `bostrack` binary in temporary folders.
 
+mod common;
+use common::*;
+
 use bostrack_core::{Image, ImageMeta};
 use serde_json::Value;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
-
-fn bostrack(args: &[&str], cwd: &Path) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_bostrack"))
-        .args(args)
-        .current_dir(cwd)
-        .env_remove("SLURM_CPUS_PER_TASK")
-        .output()
-        .expect("the binary runs")
-}
-
-fn stdout(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stdout).into_owned()
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
-
-fn code(o: &Output) -> i32 {
-    o.status.code().expect("exited normally")
-}
-
-/// The repository root (two levels above this crate).
-fn repo_root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../..")
-        .canonicalize()
-        .unwrap()
-}
+use std::process::Output;
 
 /// Asserts a failure with exit code 1 and a single stderr line containing every `needle`.
 fn assert_fails_with(o: &Output, needles: &[&str]) {
