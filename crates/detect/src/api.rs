@@ -784,6 +784,13 @@ pub fn track(
     // The median displacement of the peaks in `found` at seed k's 3x3 index neighbours, or its
     // 5x5 ones when fewer than `min` of the 3x3 have one; None when the 5x5 have fewer too.
     type Bufs = (Vec<usize>, Vec<f64>, Vec<f64>);
+    let new_bufs = || -> Bufs {
+        (
+            Vec::with_capacity(24),
+            Vec::with_capacity(24),
+            Vec::with_capacity(24),
+        )
+    };
     let neighbour_median =
         |k: usize, found: &[Option<Peak>], min: usize, (nb, tx, ty): &mut Bufs| {
             for r in 1..=2 {
@@ -849,25 +856,16 @@ pub fn track(
     let mut starts: Vec<(f64, usize)> = (0..n)
         .into_par_iter()
         .with_min_len(PAR_MIN)
-        .map_init(
-            || {
-                (
-                    Vec::with_capacity(24),
-                    Vec::with_capacity(24),
-                    Vec::with_capacity(24),
-                )
-            },
-            |bufs, k| {
-                let p = first[k]?;
-                if let Some(med) = neighbour_median(k, &first, 3, bufs) {
-                    let d = disp(&p, k);
-                    if dist2(d, med) < (0.15 * s).powi(2) {
-                        return Some((norm(d), k));
-                    }
+        .map_init(new_bufs, |bufs, k| {
+            let p = first[k]?;
+            if let Some(med) = neighbour_median(k, &first, 3, bufs) {
+                let d = disp(&p, k);
+                if dist2(d, med) < (0.15 * s).powi(2) {
+                    return Some((norm(d), k));
                 }
-                None
-            },
-        )
+            }
+            None
+        })
         .flatten()
         .collect();
     // Where the true displacement exceeds half a spacing, the nearest peak is a neighbour's
@@ -1027,32 +1025,23 @@ pub fn track(
     let sites: Vec<Site> = (0..n)
         .into_par_iter()
         .with_min_len(PAR_MIN)
-        .map_init(
-            || {
-                (
-                    Vec::with_capacity(24),
-                    Vec::with_capacity(24),
-                    Vec::with_capacity(24),
-                )
-            },
-            |bufs, k| {
-                let pd = neighbour_median(k, &result, 2, bufs)
-                    .unwrap_or_else(|| pred_disp[k].unwrap_or([0.0, 0.0]));
-                // A dot the reference did not see must pass a stricter test when found by a
-                // search.
-                let peak_extra = if seeds[k].flags.contains(DotFlags::MISSING) {
-                    1.0
-                } else {
-                    0.0
-                };
-                Site {
-                    index: seeds[k].index,
-                    predicted: [q[k][0] + pd[0], q[k][1] + pd[1]],
-                    peak: result[k],
-                    peak_extra,
-                }
-            },
-        )
+        .map_init(new_bufs, |bufs, k| {
+            let pd = neighbour_median(k, &result, 2, bufs)
+                .unwrap_or_else(|| pred_disp[k].unwrap_or([0.0, 0.0]));
+            // A dot the reference did not see must pass a stricter test when found by a
+            // search.
+            let peak_extra = if seeds[k].flags.contains(DotFlags::MISSING) {
+                1.0
+            } else {
+                0.0
+            };
+            Site {
+                index: seeds[k].index,
+                predicted: [q[k][0] + pd[0], q[k][1] + pd[1]],
+                peak: result[k],
+                peak_extra,
+            }
+        })
         .collect();
     let site_idx: Vec<GridIndex> = seeds.iter().map(|t| t.index).collect();
     let tpl = Template::new(
