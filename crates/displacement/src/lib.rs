@@ -11,7 +11,9 @@
 //!   `AR_x = (I0_ref/I0_grad) · sqrt((σx_grad/σx_ref)(σy_ref/σy_grad)) · ((1-ρ_ref²)/(1-ρ_grad²))^(1/4)`,
 //!
 //!   `AR_y` with x and y exchanged (`bostrack_model::amplification_ratio`; the published
-//!   variant only as the named option [`ArVariant::Published`]);
+//!   variant only as the named option [`ArVariant::Published`]); or, with
+//!   [`ArVariant::Bounds`], the ratio of the two fits' exact per-dot bounds, which also holds
+//!   under shot noise, where the closed form over-states AR for dimmer, blurred dots;
 //! - `u_grad = AR · u_ref` per axis, with `u_ref` the single-image reference position
 //!   uncertainty from a no-flow stack (`bostrack-uncertainty`);
 //! - `u_d = sqrt(u_refpos² + u_grad²)`, `u_refpos = u_ref` (one reference image) or

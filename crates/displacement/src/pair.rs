@@ -1,7 +1,7 @@
 //! One reference/gradient pair: displacement, amplification ratio, displacement uncertainty.
 
 use bostrack_core::{DotFit, DotFlags, Gaussian2D, GridIndex};
-use bostrack_model::{ArVariant, amplification_ratio};
+use bostrack_model::{ArVariant, amplification_ratio, bound_ratio};
 
 /// Which position of a reference dot the displacement is measured from, and hence its
 /// uncertainty `u_refpos` in `u_d² = u_refpos² + u_grad²`.
@@ -68,8 +68,9 @@ pub fn pixel_blurred(g: &Gaussian2D) -> Gaussian2D {
 pub struct DisplacementConfig {
     /// Default [`Quantities::Uncertainty`].
     pub quantities: Quantities,
-    /// Default [`ArVariant::Notes`]; [`ArVariant::Published`] only to reproduce published
-    /// numbers.
+    /// Default [`ArVariant::Notes`]; [`ArVariant::Bounds`] (the ratio of the two fits' own
+    /// bounds, right under shot noise too); [`ArVariant::Published`] only to reproduce
+    /// published numbers.
     pub ar_variant: ArVariant,
     /// Default [`ArShapes::Fitted`].
     pub ar_shapes: ArShapes,
@@ -189,7 +190,8 @@ fn finite2(v: [f64; 2]) -> Option<[f64; 2]> {
 ///   ([`ReferencePosition`]; the fit where the stack has no mean for the dot);
 /// - `AR = amplification_ratio(reference, gradient, cfg.ar_variant)` per axis, from the fitted
 ///   amplitudes, sigmas and ρ of the same dot in both images (optionally blurred by the pixel
-///   first, [`ArShapes`]);
+///   first, [`ArShapes`]); with [`ArVariant::Bounds`], `crlb_grad / crlb_ref` of the two
+///   records (`bostrack_model::bound_ratio`);
 /// - `u_grad = AR · u_ref`, `u_refpos = u_ref` (single image) or `u_ref / sqrt(K)` (stack
 ///   mean position), `u_d = sqrt(u_refpos² + u_grad²)`.
 ///
@@ -231,9 +233,10 @@ pub fn pair_dot(input: &PairInput<'_>, cfg: &DisplacementConfig) -> Option<PairD
 
     let ar = (cfg.quantities >= Quantities::AmplificationRatio)
         .then(|| {
-            both.map(|(r, g)| match cfg.ar_shapes {
-                ArShapes::Fitted => amplification_ratio(&r.params, &g.params, cfg.ar_variant),
-                ArShapes::PixelBlurred => amplification_ratio(
+            both.map(|(r, g)| match (cfg.ar_variant, cfg.ar_shapes) {
+                (ArVariant::Bounds, _) => bound_ratio([r.crlb_x, r.crlb_y], [g.crlb_x, g.crlb_y]),
+                (_, ArShapes::Fitted) => amplification_ratio(&r.params, &g.params, cfg.ar_variant),
+                (_, ArShapes::PixelBlurred) => amplification_ratio(
                     &pixel_blurred(&r.params),
                     &pixel_blurred(&g.params),
                     cfg.ar_variant,

@@ -2,7 +2,7 @@
 //! pixels, fixed-size arrays, no allocation.
 
 use crate::eval::{
-    IA, IT, IU, IV, IX, IY, Kind, Pass, Theta, Workspace, evaluate, normal_equations, set_weights,
+    IA, IT, IU, IV, IX, IY, Kind, Pass, Theta, Workspace, evaluate, normal_equations, start_linear,
     weight_change,
 };
 use bostrack_core::{FitStatus, NoiseModel};
@@ -211,7 +211,8 @@ pub(crate) fn solve_fast(
     tolerance: f64,
     reweight: bool,
 ) -> Outcome {
-    set_weights(ws, &theta0, sampling, noise);
+    let mut theta0 = theta0;
+    start_linear(ws, &mut theta0, sampling, noise, bounds.amp_min);
     let mut out = lm_loop(
         ws,
         theta0,

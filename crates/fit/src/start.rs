@@ -132,21 +132,30 @@ pub(crate) fn moments(ws: &mut Workspace, start: [f64; 2], sampling: Sampling) -
         } else {
             ws.data[k] + RISE * peak
         };
-        // 8-connected, so that a diagonal ridge (strong rho) is followed
-        for dj in -1i64..=1 {
-            for di in -1i64..=1 {
-                let (ii, jj) = (i as i64 + di, j as i64 + dj);
-                if (di == 0 && dj == 0) || ii < 0 || jj < 0 || ii >= w as i64 || jj >= h as i64 {
-                    continue;
-                }
-                let kk = jj as usize * w + ii as usize;
-                if !ws.mark[kk]
-                    && ws.keep[kk] > 0.0
-                    && ws.data[kk] - bg > thr
-                    && ws.data[kk] <= ceiling
-                {
-                    ws.mark[kk] = true;
-                    ws.stack.push(kk as u32);
+        // 8-connected, so that a diagonal ridge (strong rho) is followed; rows then columns
+        // from the top left (the order fixes the summation order, hence the rounding)
+        let mut visit = |kk: usize| {
+            if !ws.mark[kk] && ws.keep[kk] > 0.0 && ws.data[kk] - bg > thr && ws.data[kk] <= ceiling
+            {
+                ws.mark[kk] = true;
+                ws.stack.push(kk as u32);
+            }
+        };
+        if i > 0 && i + 1 < w && j > 0 && j + 1 < h {
+            let up = k - w;
+            let down = k + w;
+            for kk in [up - 1, up, up + 1, k - 1, k + 1, down - 1, down, down + 1] {
+                visit(kk);
+            }
+        } else {
+            for dj in -1i64..=1 {
+                for di in -1i64..=1 {
+                    let (ii, jj) = (i as i64 + di, j as i64 + dj);
+                    if (di == 0 && dj == 0) || ii < 0 || jj < 0 || ii >= w as i64 || jj >= h as i64
+                    {
+                        continue;
+                    }
+                    visit(jj as usize * w + ii as usize);
                 }
             }
         }

@@ -94,14 +94,22 @@ fn bound_in_record_equals_model_crate() {
             let keep = |x: i64, y: i64| !(x == 3 && y == 0);
             let b = crlb_masked(&fit.params, w, &noise, sampling, model, &keep).unwrap();
             // the record's bound comes from the solver's last normal matrix: a step of at most
-            // `tolerance` (0.05 sd) from the solution, weights within 2 % of those there
+            // `tolerance` (0.05 sd) from the solution, weights within 2 % of those there (so the
+            // Fisher matrix within 2 % and the bound within ~1 %; measured up to 2.4e-3 since
+            // the start's amplitude and background are fitted linearly, and its weights are
+            // then often close enough to the solution's to be kept)
             assert!(
-                (fit.crlb_x / b.std[0] - 1.0).abs() < 2e-3,
+                (fit.crlb_x / b.std[0] - 1.0).abs() < 5e-3,
                 "{model:?} {} vs {}",
                 fit.crlb_x,
                 b.std[0]
             );
-            assert!((fit.crlb_y / b.std[1] - 1.0).abs() < 2e-3);
+            assert!(
+                (fit.crlb_y / b.std[1] - 1.0).abs() < 5e-3,
+                "{model:?} {sampling:?} {} vs {}",
+                fit.crlb_y,
+                b.std[1]
+            );
         }
     }
 }

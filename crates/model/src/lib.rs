@@ -22,7 +22,7 @@ mod bound;
 mod pixel;
 mod quadrature;
 
-pub use ar::{ArVariant, amplification_ratio};
+pub use ar::{ArVariant, amplification_ratio, bound_ratio};
 pub use bound::{Bound, crlb, crlb_closed_form, crlb_masked, fisher_information, invert_spd};
 pub use pixel::{
     ModelKind, N_PARAMS, PARAM_NAMES, Sampling, add_dot, pixel_gradient, pixel_value, render,

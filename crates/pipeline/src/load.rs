@@ -241,7 +241,7 @@ mod tests {
                 assert_eq!(*line, 2);
                 assert_eq!(value, "publishd");
                 assert_eq!(suggestion.as_deref(), Some("published"));
-                assert_eq!(**valid, ["notes", "published"]);
+                assert_eq!(**valid, ["notes", "bounds", "published"]);
             }
             other => panic!("wrong error: {other:?}"),
         }

@@ -177,6 +177,13 @@ impl Validator<'_> {
         cfg.fit
             .validate()
             .map_err(|e| self.invalid("fit", e.to_string()))?;
+        if cfg.uncertainty.ar_variant == bostrack_displacement::ArVariant::Bounds && !cfg.fit.bound
+        {
+            return Err(self.invalid(
+                "uncertainty.ar_variant",
+                "\"bounds\" is the ratio of the fits' Cramer-Rao bounds, but [fit] bound = false",
+            ));
+        }
         let m = &cfg.matching;
         if !(m.search_radius > 0.0 && m.search_radius <= 1.0) {
             return Err(self.invalid(
@@ -423,6 +430,10 @@ mod tests {
             ("[output]\nfigure_formats = []\n", "output.figure_formats"),
             ("[detect]\nmin_snr = -1.0\n", "detect.min_snr"),
             ("[fit]\nmax_iterations = 0\n", "fit"),
+            (
+                "[fit]\nbound = false\n[uncertainty]\nar_variant = \"bounds\"\n",
+                "uncertainty.ar_variant",
+            ),
             (
                 "[match]\nmax_displacement = -1.0\n",
                 "match.max_displacement",

@@ -237,8 +237,9 @@ pub(crate) const SECTIONS: &[SectionDoc] = &[
             ),
             key(
                 "ar_variant",
-                "Amplification ratio: \"notes\" (NOTES.md section 2) or \"published\" (the published\n\
-                 reference code, only to reproduce published numbers).",
+                "Amplification ratio: \"notes\" (NOTES.md section 2), \"bounds\" (the ratio of the two\n\
+                 fits' own Cramer-Rao bounds: right under shot noise too, needs [fit] bound = true)\n\
+                 or \"published\" (the published reference code, only to reproduce published numbers).",
             ),
         ],
     },

@@ -81,6 +81,30 @@ fn real_sample_pair_runs_and_the_bound_agrees_with_the_stack() {
     // inside, the blur of the flow makes the gradient dots worse
     assert!(ar_in_med > ar_out_med, "{ar_in_med} vs {ar_out_med}");
 
+    // the `bounds` variant on the same pairs: the ratio of the two fits' own bounds under the
+    // stack's read + shot noise model (the closed form assumes signal-independent noise)
+    let (mut b_in, mut b_out) = (Vec::new(), Vec::new());
+    for d in frame.dots.iter().filter(|d| d.valid && d.ar.is_some()) {
+        let (Some(r), Some(g), Some(p)) = (d.reference, d.gradient, d.reference_position) else {
+            continue;
+        };
+        let b = bostrack_model::bound_ratio([r.crlb_x, r.crlb_y], [g.crlb_x, g.crlb_y]);
+        let v = if in_flow(p[0], p[1]) {
+            &mut b_in
+        } else {
+            &mut b_out
+        };
+        v.extend(b.into_iter().filter(|x| x.is_finite()));
+    }
+    let (b_in_med, b_out_med) = (median(b_in.clone()), median(b_out.clone()));
+    eprintln!(
+        "bounds AR inside the flow: median {b_in_med:.4}, p99 {:.4}; outside: median {b_out_med:.4}, p99 {:.4}",
+        p99(b_in.clone()),
+        p99(b_out.clone())
+    );
+    assert!((b_out_med - 1.0).abs() < 0.02, "{b_out_med}");
+    assert!(b_in_med > b_out_med, "{b_in_med} vs {b_out_med}");
+
     // the per-dot bound of the reference fits against the stack's u_ref: the same quantity
     // measured two ways (the bound from the fitted shape and the noise model, the scatter from
     // 10 independent images), per axis, over the dots that have both. Measured: u_ref/crlb =

@@ -13,6 +13,7 @@
 //! measurements.
 
 use bostrack_core::DotFlags;
+use bostrack_displacement::ArVariant;
 use bostrack_pipeline::{PipelineConfig, Plan, Quantities, ReferenceContext, process_image};
 use bostrack_synth::{DisplacementField, FlowConfig, Scene, SceneConfig, add_noise, stack};
 use std::collections::HashMap;
@@ -245,6 +246,7 @@ fn scatter_ratio(
     growth: f64,
     gain: f64,
     reps: usize,
+    variant: ArVariant,
 ) -> ([f64; 2], [f64; 2], [f64; 2]) {
     let sigma = 1.2;
     let mut sc = SceneConfig {
@@ -287,6 +289,7 @@ fn scatter_ratio(
     let mut pc = PipelineConfig::default();
     pc.detect.spacing = Some(sc.lattice.spacing);
     pc.output.quantities = Quantities::Amplification;
+    pc.uncertainty.ar_variant = variant;
     let c = campaign(pc);
     let ctx =
         ReferenceContext::from_images(&c.plan, reference.image.clone(), None, vec![]).unwrap();
@@ -347,7 +350,7 @@ fn scatter_ratio(
 )]
 fn ar_predicts_the_scatter_ratio() {
     for (rho, growth) in [(None, 1.0), (Some(0.4), 0.0), (Some(-0.8), 0.0)] {
-        let (m, p, [fitted_rho, dots]) = scatter_ratio(rho, growth, 0.0, 16);
+        let (m, p, [fitted_rho, dots]) = scatter_ratio(rho, growth, 0.0, 16, ArVariant::Notes);
         eprintln!(
             "rho' {rho:?} (fitted {fitted_rho:.3}), {dots:.0} dots: measured {m:.4?}, AR {p:.4?}, ratio {:.4?}",
             [m[0] / p[0], m[1] / p[1]]
@@ -367,17 +370,39 @@ fn ar_predicts_the_scatter_ratio() {
     }
 }
 
-/// Not a pass/fail test: how far the NOTES.md §2 amplification ratio is from the measured
-/// scatter ratio under read + shot noise (the sample's noise is shot-noise dominated at the dot
-/// peaks), where its equal-noise assumption does not hold.
+/// Under read + shot noise (the sample's noise is shot-noise dominated at the dot peaks) the
+/// NOTES.md §2 formula, derived for the same signal-independent noise in both images,
+/// over-states the scatter ratio of the blurred (dimmer) dots; the `bounds` variant (the ratio of
+/// the two fits' own bounds under the estimated noise model) predicts it within 5 %, and so it
+/// does under read noise alone. Prints both.
 #[test]
-#[ignore = "measurement; run with --ignored --nocapture"]
-fn ar_under_shot_noise() {
-    for (rho, growth) in [(None, 1.0), (Some(0.4), 0.0), (Some(-0.8), 0.0)] {
-        let (m, p, _) = scatter_ratio(rho, growth, 0.6, 16);
+#[cfg_attr(
+    debug_assertions,
+    ignore = "statistical, ~20 s in release: cargo test --release (CI runs it)"
+)]
+fn bounds_ar_predicts_the_scatter_ratio_under_shot_noise() {
+    for (gain, rho, growth) in [
+        (0.6, None, 1.0),
+        (0.6, Some(0.4), 0.0),
+        (0.6, Some(-0.8), 0.0),
+        (0.0, Some(-0.8), 0.0),
+    ] {
+        let (m, p, [_, dots]) = scatter_ratio(rho, growth, gain, 16, ArVariant::Bounds);
+        let (_, notes, _) = scatter_ratio(rho, growth, gain, 2, ArVariant::Notes);
         eprintln!(
-            "shot noise, rho' {rho:?}: measured {m:.4?}, AR {p:.4?}, measured / AR {:.4?}",
-            [m[0] / p[0], m[1] / p[1]]
+            "gain {gain}, rho' {rho:?}: measured {m:.4?}; bounds AR {p:.4?} (measured / AR {:.4?}); \
+             NOTES AR {notes:.4?} (measured / AR {:.4?})",
+            [m[0] / p[0], m[1] / p[1]],
+            [m[0] / notes[0], m[1] / notes[1]]
         );
+        assert!(dots > 800.0);
+        for a in 0..2 {
+            assert!(
+                (m[a] / p[a] - 1.0).abs() < 0.05,
+                "gain {gain}, rho' {rho:?}, axis {a}: measured {} vs bounds AR {}",
+                m[a],
+                p[a]
+            );
+        }
     }
 }

@@ -341,6 +341,7 @@ pub fn process_image(
         ar_variant: match plan.uncertainty.ar_variant {
             bostrack_displacement::ArVariant::Notes => "notes".into(),
             bostrack_displacement::ArVariant::Published => "published".into(),
+            bostrack_displacement::ArVariant::Bounds => "bounds".into(),
         },
         counts,
         medians,
