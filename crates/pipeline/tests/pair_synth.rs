@@ -127,6 +127,29 @@ fn site(p: [f64; 2], origin: [f64; 2], s: f64) -> (i64, i64) {
     ignore = "statistical, ~10 s in release: cargo test --release (CI runs it)"
 )]
 fn u_d_predicts_the_displacement_error() {
+    let (all, high, max_ar) = u_d_errors(0.0, ArVariant::Notes);
+    check_u_d("read noise, notes AR", &all, &high, max_ar, 300);
+}
+
+/// The same scene under read + shot noise (the sample's gain, 0.6 counts per count: the noise
+/// model then comes from the stack with its gain) with `ar_variant = "bounds"`: u_d still
+/// predicts the error (with the NOTES formula it over-states it for the blurred, dimmer dots,
+/// see `bounds_ar_predicts_the_scatter_ratio_under_shot_noise`).
+#[test]
+#[cfg_attr(
+    debug_assertions,
+    ignore = "statistical, ~10 s in release: cargo test --release (CI runs it)"
+)]
+fn u_d_predicts_the_displacement_error_under_shot_noise_with_bounds_ar() {
+    let (all, high, max_ar) = u_d_errors(0.6, ArVariant::Bounds);
+    // (fewer dots reach AR 1.2 than with the formula, which over-states it here)
+    check_u_d("shot noise, bounds AR", &all, &high, max_ar, 250);
+}
+
+/// The displacement errors of the scene described at [`u_d_predicts_the_displacement_error`]
+/// (camera gain `gain`: 0 is read noise only) against u_d with the amplification ratio
+/// `variant`: every usable dot, the dots with AR >= 1.2, and the largest AR.
+fn u_d_errors(gain: f64, variant: ArVariant) -> (Errors, Errors, f64) {
     const K: usize = 10;
     let mut sc = SceneConfig {
         width: 768,
@@ -135,7 +158,7 @@ fn u_d_predicts_the_displacement_error() {
     };
     sc.lattice.spacing = 12.0;
     sc.seed = 3;
-    sc.noise.gain = 0.0;
+    sc.noise.gain = gain;
     let flow = FlowConfig {
         displacement: DisplacementField::GaussianBump {
             centre: [384.0, 384.0],
@@ -149,6 +172,7 @@ fn u_d_predicts_the_displacement_error() {
     let gradient = Scene::gradient(&sc, &flow).unwrap();
     let mut pc = PipelineConfig::default();
     pc.detect.spacing = Some(sc.lattice.spacing);
+    pc.uncertainty.ar_variant = variant;
     let c = campaign(pc);
     let ctx = ReferenceContext::from_images(
         &c.plan,
@@ -198,9 +222,17 @@ fn u_d_predicts_the_displacement_error() {
         }
         max_ar = max_ar.max(ar[0]).max(ar[1]);
     }
+    (all, high, max_ar)
+}
+
+/// The acceptance statistics: RMS error / RMS u_d within 10 % (also over the strongly blurred
+/// dots alone, more than `min_high` of them), coverage of |e| <= u_d within 3 % of Student's t_9
+/// value.
+fn check_u_d(what: &str, all: &Errors, high: &Errors, max_ar: f64, min_high: usize) {
+    const K: usize = 10;
     let expected = t_coverage(1.0, K - 1);
     eprintln!(
-        "all dots ({}): rms error {:?}, rms u_d {:?}, coverage {:?} (expected {expected:.4})",
+        "{what}: all dots ({}): rms error {:?}, rms u_d {:?}, coverage {:?} (expected {expected:.4})",
         all.n,
         all.rms_error(),
         all.rms_predicted(),
@@ -215,7 +247,7 @@ fn u_d_predicts_the_displacement_error() {
     );
     assert!(all.n > 3800, "{} dots", all.n);
     assert!(
-        high.n > 300 && max_ar > 1.8,
+        high.n > min_high && max_ar > 1.8,
         "{} dots, max AR {max_ar}",
         high.n
     );

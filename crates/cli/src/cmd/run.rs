@@ -118,7 +118,7 @@ fn summary_line(r: &BatchReport, threads: usize) -> String {
     };
     let rss = peak_rss_mib().map_or(String::new(), |m| format!(", peak RSS {m:.0} MiB"));
     format!(
-        "{share}: {} computed, {} figures drawn, {} complete already, {} failed, in {:.1} s \
+        "{share}: {} computed, {} only missing figures drawn, {} complete already, {} failed, in {:.1} s \
          ({rate:.2} frames/s, {threads} threads{rss}); outputs in {}",
         r.computed,
         r.figures_drawn,
