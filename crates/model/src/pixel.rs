@@ -26,7 +26,7 @@ pub enum Sampling {
     /// The model's value at the pixel centre.
     Point,
     /// The mean of the model over the pixel's unit square: exact erf differences when ρ = 0,
-    /// Gauss-Legendre quadrature otherwise (see [`quadrature_order`]).
+    /// Gauss-Legendre quadrature otherwise (see `quadrature_order`).
     #[default]
     Integrated,
 }
