@@ -4,7 +4,7 @@
 //!
 //! `RAYON_NUM_THREADS=1 cargo run --release -p bostrack-pipeline --example pair_parts -- [--runs N] [--only PART]`
 //!
-//! PART (default: all): `noise`, `fit0`..`fit3` (`fit_dots` of the reference with 0..3
+//! `--no-mask` runs every stage without the sample's region of interest. PART (default: all): `noise`, `fit0`..`fit3` (`fit_dots` of the reference with 0..3
 //! neighbour passes; 0 = no neighbour model), `iwc`, `refit` (the gradient fitted in one pass
 //! from the reference fits moved by each dot's tracked displacement, as the no-flow stack is),
 //! `fitgrad` (`fit_dots` of the gradient), and the diagnostics `passes` (reference positions
@@ -80,12 +80,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let (w, h) = (reference.width(), reference.height());
     let (t, mask) = best(runs, || read_mask_for(&dir.join("mask.tif"), w, h));
     let mask = mask?;
+    // `--no-mask`: every stage without the region of interest
+    let no_mask = std::env::args().any(|a| a == "--no-mask");
+    let roi = (!no_mask).then_some(&mask);
     println!("decode mask           {t:7.2} ms");
     let (t, gradient) = best(runs, || read_image(&dir.join("pair/gradient.tif")));
     let gradient = gradient?;
     println!("decode gradient       {t:7.2} ms");
     let (t, noise) = best(if want("noise") { runs } else { 1 }, || {
-        estimate_noise(&reference, Some(&mask))
+        estimate_noise(&reference, roi)
     });
     let noise = noise?;
     println!("noise (one image)     {t:7.2} ms");
@@ -94,14 +97,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         diameter: Some(6.5),
         ..Default::default()
     };
-    let (t, det) = best(runs, || {
-        bostrack_detect::detect(&reference, Some(&mask), &dcfg)
-    });
+    let (t, det) = best(runs, || bostrack_detect::detect(&reference, roi, &dcfg));
     let det = det?;
     println!("detect                {t:7.2} ms");
-    let (t, tracked) = best(runs, || {
-        bostrack_detect::track(&gradient, Some(&mask), &det, &dcfg)
-    });
+    let (t, tracked) = best(runs, || bostrack_detect::track(&gradient, roi, &det, &dcfg));
     let tracked = tracked?;
     println!("track                 {t:7.2} ms");
     let n = det.seeds.len() as f64;
@@ -119,9 +118,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             },
             ..cfg.clone()
         };
-        let (t, fits) = best(runs, || {
-            fit_dots(&reference, Some(&mask), &det.seeds, &c, &noise)
-        });
+        let (t, fits) = best(runs, || fit_dots(&reference, roi, &det.seeds, &c, &noise));
         let fits = fits?;
         println!(
             "fit_dots passes {passes}     {t:7.2} ms  {:.2} us/dot, {:.2} iterations/dot (last pass)",
@@ -135,9 +132,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         ..cfg.clone()
     };
     if want("iwc") {
-        let (t, fits) = best(runs, || {
-            fit_dots(&reference, Some(&mask), &det.seeds, &iwc, &noise)
-        });
+        let (t, fits) = best(runs, || fit_dots(&reference, roi, &det.seeds, &iwc, &noise));
         // a digest of the estimates (Debug prints each f64 so that it reads back to the same
         // bits): to check that a change leaves them alone
         let mut hasher = std::hash::DefaultHasher::new();
@@ -159,7 +154,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     {
         return Ok(());
     }
-    let ref_fits = fit_dots(&reference, Some(&mask), &det.seeds, &cfg, &noise)?;
+    let ref_fits = fit_dots(&reference, roi, &det.seeds, &cfg, &noise)?;
     // the gradient from the reference fits, each moved by its own tracked displacement
     let prior: Vec<_> = ref_fits
         .iter()
@@ -173,15 +168,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .collect();
     if want("refit") {
         let (t, _) = best(runs, || {
-            refit_dots(
-                &gradient,
-                Some(&mask),
-                &tracked.seeds,
-                &cfg,
-                &noise,
-                &prior,
-                None,
-            )
+            refit_dots(&gradient, roi, &tracked.seeds, &cfg, &noise, &prior, None)
         });
         println!(
             "refit gradient        {t:7.2} ms  {:.2} us/dot",
@@ -193,7 +180,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let with = |passes: u32| {
             fit_dots(
                 &reference,
-                Some(&mask),
+                roi,
                 &det.seeds,
                 &FitConfig {
                     neighbour_passes: passes,
@@ -213,7 +200,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             let seq: Vec<Vec<bostrack_core::DotFit>> =
                 (1..=8).map(with).collect::<Result<_, _>>()?;
             for (k, s) in det.seeds.iter().enumerate() {
-                if s.index.j == -58 && (-57..=-53).contains(&s.index.i) {
+                // the lattice's top row inside the region of interest (rows from 32), left part
+                if (35.0..40.0).contains(&s.centre[1]) && (40.0..=80.0).contains(&s.centre[0]) {
                     let xs: Vec<String> = seq
                         .iter()
                         .map(|f| {
@@ -275,7 +263,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let with = |tolerance: f64| {
             fit_dots(
                 &reference,
-                Some(&mask),
+                roi,
                 &det.seeds,
                 &FitConfig {
                     tolerance,
@@ -299,7 +287,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         }
     }
     if want("start") {
-        let iwc_fits = fit_dots(&reference, Some(&mask), &det.seeds, &iwc, &noise)?;
+        let iwc_fits = fit_dots(&reference, roi, &det.seeds, &iwc, &noise)?;
         let mut r = [
             Vec::new(),
             Vec::new(),
@@ -342,7 +330,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     }
     if want("fitgrad") {
         let (t, _) = best(runs, || {
-            fit_dots(&gradient, Some(&mask), &tracked.seeds, &cfg, &noise)
+            fit_dots(&gradient, roi, &tracked.seeds, &cfg, &noise)
         });
         println!(
             "fit_dots gradient     {t:7.2} ms  {:.2} us/dot",
