@@ -117,6 +117,9 @@ bit_flags! {
     OUTLIER = 11, "outlier";
     /// Fitted shape at a parameter bound (sigma or rho at its limit).
     AT_BOUND = 12, "at_bound";
+    /// A lattice neighbour of the dot lies inside the image but outside the region of interest
+    /// (the mask): light from there, if any, is in no neighbour model and may bias the fit.
+    ROI_EDGE = 13, "roi_edge";
 }
 }
 

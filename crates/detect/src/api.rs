@@ -299,6 +299,35 @@ fn kept(mask: Option<&Mask>, w: usize, h: usize, p: [f64; 2]) -> bool {
     mask.is_none_or(|m| m.keeps(x as usize, y as usize))
 }
 
+/// Flags [`DotFlags::ROI_EDGE`] on every found seed one of whose 8 lattice neighbours is
+/// predicted (`predict(i, j)`) inside the image but outside the region of interest.
+fn flag_roi_edge(
+    seeds: &mut [Seed],
+    mask: Option<&Mask>,
+    (w, h): (usize, usize),
+    predict: impl Fn(f64, f64) -> [f64; 2],
+) {
+    let Some(m) = mask else { return };
+    let masked = |p: [f64; 2]| {
+        let (x, y) = (p[0].round(), p[1].round());
+        x >= 0.0 && y >= 0.0 && x < w as f64 && y < h as f64 && !m.keeps(x as usize, y as usize)
+    };
+    for s in seeds
+        .iter_mut()
+        .filter(|s| !s.flags.contains(DotFlags::MISSING))
+    {
+        let (i, j) = (s.index.i as f64, s.index.j as f64);
+        let edge = [-1.0, 0.0, 1.0].iter().any(|&dj| {
+            [-1.0, 0.0, 1.0]
+                .iter()
+                .any(|&di| (di != 0.0 || dj != 0.0) && masked(predict(i + di, j + dj)))
+        });
+        if edge {
+            s.flags |= DotFlags::ROI_EDGE;
+        }
+    }
+}
+
 /// Whether a kept pixel of the image lies in the 3x3 block around the pixel nearest to `p`.
 fn near_kept(mask: Option<&Mask>, w: usize, h: usize, p: [f64; 2]) -> bool {
     let (x, y) = (p[0].round(), p[1].round());
@@ -663,7 +692,8 @@ pub fn detect(
         })
         .map(|c| (c.seed, c.contrast))
         .collect();
-    let (seeds, contrast): (Vec<Seed>, Vec<f64>) = report.into_iter().unzip();
+    let (mut seeds, contrast): (Vec<Seed>, Vec<f64>) = report.into_iter().unzip();
+    flag_roi_edge(&mut seeds, mask, (w, h), |i, j| map.predict(i, j));
     let hint = cfg.spacing.map(|s| spacing / s);
     let stats = stats_of(&seeds, noise, map_rms, map_inliers, fp.k, hint);
     Ok(Detection {
@@ -1072,8 +1102,9 @@ pub fn track(
         noise,
     };
     let classified = classify(&ctx, &sites, Some(&nbhd));
-    let (seeds, contrast): (Vec<Seed>, Vec<f64>) =
+    let (mut seeds, contrast): (Vec<Seed>, Vec<f64>) =
         classified.into_iter().map(|c| (c.seed, c.contrast)).unzip();
+    flag_roi_edge(&mut seeds, mask, (w, h), |i, j| reference.map.predict(i, j));
     let stats = stats_of(
         &seeds,
         noise,

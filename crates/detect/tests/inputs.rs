@@ -268,3 +268,50 @@ fn the_configuration_reads_from_toml_and_rejects_unknown_keys() {
     let empty: DetectConfig = toml::from_str("").unwrap();
     assert_eq!(empty, DetectConfig::default());
 }
+
+/// A mask that cuts the lattice: the found dots with a lattice neighbour inside the image but
+/// outside the mask are flagged `roi_edge`, in `detect` and in `track`; the others, and every
+/// dot without a mask, are not.
+#[test]
+fn dots_next_to_the_masked_region_are_flagged() {
+    let s = scene(10.0, 5.0, 0.0, 7);
+    let (w, h) = (s.image.width(), s.image.height());
+    let edge = 0.4 * h as f64;
+    let mask = Mask::from_fn(w, h, |_, y| y as f64 >= edge);
+    let cfg = DetectConfig::default();
+    let flagged = |seeds: &[bostrack_core::Seed]| -> Vec<[f64; 2]> {
+        seeds
+            .iter()
+            .filter(|d| d.flags.contains(DotFlags::ROI_EDGE))
+            .map(|d| d.centre)
+            .collect()
+    };
+    let det = detect(&s.image, None, &cfg).unwrap();
+    assert!(flagged(&det.seeds).is_empty());
+    let det = detect(&s.image, Some(&mask), &cfg).unwrap();
+    for (what, seeds) in [
+        ("detect", det.seeds.clone()),
+        (
+            "track",
+            track(&s.image, Some(&mask), &det, &cfg).unwrap().seeds,
+        ),
+    ] {
+        let found: Vec<_> = seeds
+            .iter()
+            .filter(|d| !d.flags.contains(DotFlags::MISSING))
+            .collect();
+        let edge_row = |d: &&&bostrack_core::Seed| d.centre[1] < edge + det.spacing - 0.5;
+        let in_edge_row = found.iter().filter(edge_row).count();
+        let marked = flagged(&seeds);
+        assert!(
+            in_edge_row >= 8,
+            "{what}: {in_edge_row} dots in the first kept row"
+        );
+        // every dot of the first kept row, and no other
+        assert_eq!(marked.len(), in_edge_row, "{what}: {marked:?}");
+        assert!(
+            marked.iter().all(|c| c[1] < edge + det.spacing - 0.5),
+            "{what}: {marked:?}"
+        );
+    }
+}

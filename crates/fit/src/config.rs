@@ -158,8 +158,11 @@ pub struct FitConfig {
     pub neighbours: Neighbours,
     /// With `neighbours = "subtract"`: how many times every dot is refitted after its
     /// neighbours' latest fits were subtracted (a block-Jacobi iteration; default 2). Each pass
-    /// shrinks the neighbour bias by a factor: ~0.04 at the real sample's 8 px pitch and σ 1.6
-    /// px, ~0.4 for equal dots 4σ apart (which need ~8 passes for 1e-3 px).
+    /// shrinks what is left of the neighbours' influence by a factor: on the real sample (8 px
+    /// pitch, σ 1.6 px) positions after 1, 2, 3, 4 passes differ from 8 passes by a median 0.15,
+    /// 0.023, 0.005, 0.001 of their bound, but by 2.0, 0.74, 0.48, 0.32 at the 99th percentile
+    /// (wider, elongated dots converge more slowly); equal dots 4σ apart need ~8 passes for 1e-3
+    /// px.
     pub neighbour_passes: u32,
     /// Compute `crlb_x`, `crlb_y` (default true). For the fast solver it is the inverse of
     /// the final normal matrix (the Fisher matrix of the pixels used, no extra cost); for the

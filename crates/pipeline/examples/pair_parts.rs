@@ -195,6 +195,21 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             for flow in [false, true] {
                 stats(&format!("{passes} passes vs 8"), &fits, &deep, flow);
             }
+            if passes == 2 {
+                // without the dots next to the region of interest's edge
+                let inner = |f: &[bostrack_core::DotFit]| -> Vec<bostrack_core::DotFit> {
+                    f.iter()
+                        .map(|d| {
+                            let mut d = *d;
+                            if d.flags.contains(bostrack_core::DotFlags::ROI_EDGE) {
+                                d.status = bostrack_core::FitStatus::NotFitted;
+                            }
+                            d
+                        })
+                        .collect()
+                };
+                stats("2 passes vs 8, no roi_edge", &inner(&fits), &deep, false);
+            }
         }
         if want("sequence") {
             let seq: Vec<Vec<bostrack_core::DotFit>> =
