@@ -340,7 +340,7 @@ impl Fitter {
                 noise,
                 bounds,
                 self.cfg.max_iterations,
-                self.cfg.tolerance,
+                tolerance,
             ),
         };
         self.ws.gl_n = 0;
