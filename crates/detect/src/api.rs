@@ -307,11 +307,11 @@ fn flag_roi_edge(
     (w, h): (usize, usize),
     predict: impl Fn(f64, f64) -> [f64; 2],
 ) {
-    let Some(m) = mask else { return };
-    let masked = |p: [f64; 2]| {
-        let (x, y) = (p[0].round(), p[1].round());
-        x >= 0.0 && y >= 0.0 && x < w as f64 && y < h as f64 && !m.keeps(x as usize, y as usize)
-    };
+    if mask.is_none() {
+        return;
+    }
+    // in the image, not in the region of interest
+    let masked = |p: [f64; 2]| kept(None, w, h, p) && !kept(mask, w, h, p);
     for s in seeds
         .iter_mut()
         .filter(|s| !s.flags.contains(DotFlags::MISSING))

@@ -2,6 +2,7 @@
 
 use crate::FitError;
 use crate::config::{AUTO_SIGMA, Estimator, FitConfig, FitSampling, Neighbours};
+use crate::error::check_mask;
 use crate::eval::{IA, conditional_sigma, pixel_blur, theta_from_gaussian};
 use crate::fit::Fitter;
 use bostrack_core::{
@@ -29,14 +30,7 @@ pub fn fit_dots(
     noise: &NoiseModel,
 ) -> Result<Vec<DotFit>, FitError> {
     cfg.validate()?;
-    if let Some(m) = mask.filter(|m| !m.matches(img)) {
-        return Err(FitError::MaskSize {
-            mask_w: m.width(),
-            mask_h: m.height(),
-            img_w: img.width(),
-            img_h: img.height(),
-        });
-    }
+    check_mask(img, mask)?;
     if cfg.neighbours == Neighbours::None
         || cfg.estimator != Estimator::Lsg
         || cfg.neighbour_passes == 0
@@ -113,14 +107,7 @@ pub fn refit_dots(
             seeds.len()
         )));
     }
-    if let Some(m) = mask.filter(|m| !m.matches(img)) {
-        return Err(FitError::MaskSize {
-            mask_w: m.width(),
-            mask_h: m.height(),
-            img_w: img.width(),
-            img_h: img.height(),
-        });
-    }
+    check_mask(img, mask)?;
     if cfg.neighbours == Neighbours::Subtract && cfg.estimator == Estimator::Lsg {
         return Ok(subtract_pass(
             img,

@@ -1,5 +1,6 @@
 //! Errors of the fit crate (per-dot problems are `FitStatus`/`DotFlags`, never errors).
 
+use bostrack_core::{Image, Mask};
 use thiserror::Error;
 
 /// What can go wrong with the inputs of the fit stage as a whole.
@@ -33,4 +34,17 @@ pub enum FitError {
     /// Too few usable pixels (or intensity levels) to estimate the noise.
     #[error("cannot estimate the noise: {0}")]
     Noise(String),
+}
+
+/// [`FitError::MaskSize`] unless `mask` (if any) is the size of `img`.
+pub(crate) fn check_mask(img: &Image, mask: Option<&Mask>) -> Result<(), FitError> {
+    match mask {
+        Some(m) if !m.matches(img) => Err(FitError::MaskSize {
+            mask_w: m.width(),
+            mask_h: m.height(),
+            img_w: img.width(),
+            img_h: img.height(),
+        }),
+        _ => Ok(()),
+    }
 }

@@ -914,6 +914,11 @@ pub(crate) fn set_weights(
         return;
     }
     dot_factor(ws, theta, sampling);
+    weights_from_factor(ws, theta, noise);
+}
+
+/// `w_cur = keep / variance(model)` for the dot θ whose unit-amplitude factor is in `ws.tmp`.
+fn weights_from_factor(ws: &mut Workspace, theta: &Theta, noise: &NoiseModel) {
     let (amp, bg) = (theta[IA], theta[IB]);
     let n = ws.len();
     for k in 0..n {
@@ -957,12 +962,8 @@ pub(crate) fn start_linear(
             theta[IB] = bg;
         }
     }
-    if noise.is_constant() {
-        return;
-    }
-    let (amp, bg) = (theta[IA], theta[IB]);
-    for k in 0..n {
-        ws.w_cur[k] = ws.keep[k] / noise.variance(bg + amp * ws.tmp[k]);
+    if !noise.is_constant() {
+        weights_from_factor(ws, theta, noise);
     }
 }
 

@@ -2,6 +2,7 @@
 //! stack, never from fit residuals (which also hold the model mismatch).
 
 use crate::FitError;
+use crate::error::check_mask;
 use bostrack_core::{Image, Mask, NoiseModel};
 use rayon::prelude::*;
 
@@ -266,18 +267,6 @@ fn four(d: &[f64], k: usize) -> [f64; 4] {
 /// The limit below which a finite sample is not saturated (∞ without a saturation level).
 fn usable_below(img: &Image) -> f64 {
     img.meta.saturation.unwrap_or(f64::INFINITY)
-}
-
-fn check_mask(img: &Image, mask: Option<&Mask>) -> Result<(), FitError> {
-    match mask {
-        Some(m) if !m.matches(img) => Err(FitError::MaskSize {
-            mask_w: m.width(),
-            mask_h: m.height(),
-            img_w: img.width(),
-            img_h: img.height(),
-        }),
-        _ => Ok(()),
-    }
 }
 
 /// Rows per part (work item) of the per-pixel passes. Fixed, so that the order of the pairs and

@@ -265,28 +265,11 @@ impl IndexTable {
     #[inline]
     fn ring(&self, g: GridIndex, w: i64, mut f: impl FnMut(usize)) {
         let (a, b) = (g.i as i64, g.j as i64);
-        let mut at = |da: i64, db: i64| match self {
-            IndexTable::Dense {
-                i0,
-                j0,
-                ni,
-                nj,
-                slot,
-            } => {
-                let (x, y) = (a + da - i0, b + db - j0);
-                if x >= 0 && y >= 0 && x < *ni && y < *nj {
-                    let s = slot[(y * ni + x) as usize];
-                    if s != u32::MAX {
-                        f(s as usize);
-                    }
-                }
-            }
-            IndexTable::Map(m) => {
-                if let (Ok(x), Ok(y)) = (i32::try_from(a + da), i32::try_from(b + db))
-                    && let Some(&s) = m.get(&GridIndex::new(x, y))
-                {
-                    f(s);
-                }
+        let mut at = |da: i64, db: i64| {
+            if let (Ok(x), Ok(y)) = (i32::try_from(a + da), i32::try_from(b + db))
+                && let Some(s) = self.get(GridIndex::new(x, y))
+            {
+                f(s);
             }
         };
         for da in -w..=w {

@@ -1,6 +1,8 @@
 //! Matching on synthetic point sets and dot records with known correspondence.
 
-use bostrack_core::{DotFit, DotFlags, FitStatus, Gaussian2D, GridIndex};
+mod common;
+
+use bostrack_core::{DotFit, DotFlags, FitStatus, GridIndex};
 use bostrack_match::{MatchConfig, MatchMode, MatchedBy, NearestConfig, match_dots, match_points};
 use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
@@ -137,16 +139,7 @@ fn missing_and_spurious_dots() {
 }
 
 fn dot(i: i32, j: i32, p: [f64; 2]) -> DotFit {
-    DotFit {
-        index: GridIndex::new(i, j),
-        params: Gaussian2D::circular(p[0], p[1], 1000.0, 1.5, 100.0),
-        crlb_x: 0.01,
-        crlb_y: 0.01,
-        rms: 1.0,
-        iterations: 4,
-        status: FitStatus::Converged,
-        flags: DotFlags::NONE,
-    }
+    common::dot(GridIndex::new(i, j), p)
 }
 
 /// Grid-index mode: index pairs first (failed fits included), kd-tree for the rest, and

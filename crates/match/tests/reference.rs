@@ -3,11 +3,14 @@
 //! the documented algorithms: brute-force nearest neighbours (ties to the lower index),
 //! medians by sorting, hash-map index lookups. The results must be identical, bit for bit.
 
-use bostrack_core::{DotFit, DotFlags, FitStatus, Gaussian2D, GridIndex};
+mod common;
+
+use bostrack_core::{DotFit, DotFlags, FitStatus, GridIndex};
 use bostrack_match::{
     MatchConfig, MatchMode, MatchedBy, Matches, MedianTest, NearestConfig, Pair, ValidationConfig,
     Verdict, match_dots, match_points, validate,
 };
+use common::dot;
 use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
 use rand_distr::{Distribution, Normal};
@@ -373,19 +376,6 @@ fn field(kind: usize, p: [f64; 2], s: f64) -> [f64; 2] {
         1 => [0.7 * s, 0.1],
         2 => [0.004 * (p[1] - 100.0), -0.004 * (p[0] - 100.0)],
         _ => [0.3 * s, -0.2 * s],
-    }
-}
-
-fn dot(index: GridIndex, p: [f64; 2]) -> DotFit {
-    DotFit {
-        index,
-        params: Gaussian2D::circular(p[0], p[1], 1000.0, 1.5, 100.0),
-        crlb_x: 0.01,
-        crlb_y: 0.01,
-        rms: 1.0,
-        iterations: 4,
-        status: FitStatus::Converged,
-        flags: DotFlags::NONE,
     }
 }
 

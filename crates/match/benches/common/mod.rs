@@ -3,7 +3,7 @@
 //! up to about 2 px plus 0.03 px noise per coordinate (like the real sample: ~12.2k dots on a
 //! 1024 x 1024 image).
 
-use bostrack_core::{DotFit, DotFlags, FitStatus, Gaussian2D, GridIndex};
+use bostrack_core::{DotFit, GridIndex};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
@@ -25,19 +25,13 @@ pub struct Field {
     pub displacement: Vec<[f64; 2]>,
 }
 
+#[path = "../../tests/common/mod.rs"]
+mod record;
+
 fn dots(p: &[[f64; 2]]) -> Vec<DotFit> {
     p.iter()
         .enumerate()
-        .map(|(k, p)| DotFit {
-            index: GridIndex::new((k % SIDE) as i32, (k / SIDE) as i32),
-            params: Gaussian2D::circular(p[0], p[1], 1000.0, 1.5, 100.0),
-            crlb_x: 0.01,
-            crlb_y: 0.01,
-            rms: 1.0,
-            iterations: 4,
-            status: FitStatus::Converged,
-            flags: DotFlags::NONE,
-        })
+        .map(|(k, p)| record::dot(GridIndex::new((k % SIDE) as i32, (k / SIDE) as i32), *p))
         .collect()
 }
 
