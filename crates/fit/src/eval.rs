@@ -35,6 +35,7 @@
 use bostrack_core::{Gaussian2D, NoiseModel};
 use bostrack_model::Sampling;
 use std::sync::OnceLock;
+use wide::f64x2;
 
 /// Index of x0 in θ.
 pub(crate) const IX: usize = 0;
@@ -136,13 +137,18 @@ pub(crate) struct Shape {
 
 impl Shape {
     pub fn new(u: f64, v: f64, t: f64) -> Shape {
-        let (sh, ch) = (t.sinh(), t.cosh());
+        // three calls of libm instead of five (one per evaluation and per rendered neighbour):
+        // sinh t = (m + m/(1+m))/2 with m = e^t - 1 (accurate for small t), cosh t = sinh t + e^-t
+        let m = t.exp_m1();
+        let sh = 0.5 * (m + m / (1.0 + m));
+        let ch = sh + 1.0 / (1.0 + m);
         let ch2 = ch * ch;
         let s2t = 2.0 * sh * ch;
         let c2t = ch2 + sh * sh;
-        let eu2 = (-2.0 * u).exp();
-        let ev2 = (-2.0 * v).exp();
-        let euv = (-u - v).exp();
+        let (eu, ev) = ((-u).exp(), (-v).exp());
+        let eu2 = eu * eu;
+        let ev2 = ev * ev;
+        let euv = eu * ev;
         Shape {
             a: ch2 * eu2,
             b: -0.5 * s2t * euv,
@@ -437,6 +443,8 @@ pub(crate) struct Pass {
     /// Σ w r φ.
     pub grad: [f64; 7],
     pub finite: bool,
+    /// The shape coefficients at the evaluated θ (for [`normal_equations`]).
+    pub shape: Shape,
 }
 
 /// Basis description: (power of E, power of X, power of Y) of φ_0..φ_6.
@@ -461,7 +469,7 @@ pub(crate) fn evaluate(
     noise: &NoiseModel,
 ) -> Pass {
     match sampling {
-        Sampling::Point => eval_point_moments(ws, theta, noise),
+        Sampling::Point => eval_point_moments(ws, theta, &Shape::of(theta), noise),
         Sampling::Integrated => {
             fill_phi_integrated(ws, theta, kind);
             eval_general(ws, theta, noise)
@@ -470,9 +478,8 @@ pub(crate) fn evaluate(
 }
 
 /// Point-sampled pass with the moment accumulation.
-fn eval_point_moments(ws: &mut Workspace, theta: &Theta, noise: &NoiseModel) -> Pass {
+fn eval_point_moments(ws: &mut Workspace, theta: &Theta, s: &Shape, noise: &NoiseModel) -> Pass {
     let (w, h) = (ws.w, ws.h);
-    let s = Shape::of(theta);
     let x_first = ws.wx as f64 - theta[IX];
     let y_first = ws.wy as f64 - theta[IY];
     exp_grid(
@@ -501,32 +508,44 @@ fn eval_point_moments(ws: &mut Workspace, theta: &Theta, noise: &NoiseModel) -> 
         let d = &ws.data[row.clone()];
         let kp = &ws.keep[row.clone()];
         let wt = if variable { &ws.w_cur[row] } else { kp };
-        let mut s2 = [0.0f64; 5];
-        let mut s1 = [0.0f64; 3];
-        let mut t1 = [0.0f64; 3];
-        let (mut t0, mut w0, mut cc, mut sq) = (0.0, 0.0, 0.0, 0.0);
+        // the sixteen sums as seven two-lane vectors and one scalar (as sixteen scalars they
+        // spilled to the stack); every lane adds its terms in the order one scalar sum would,
+        // with the same products, so the results are those of the scalar loop bit for bit
+        let zero = f64x2::ZERO;
+        let (mut s2_12, mut s2_34, mut s1_12, mut t1_12) = (zero, zero, zero, zero);
+        let (mut s2_s1, mut t1_t0, mut w0_cc) = (zero, zero, zero);
+        let mut sq = 0.0;
         for ((((&ei, &di), &ki), &wi), xp) in e.iter().zip(d).zip(kp).zip(wt).zip(&ws.xp[..w]) {
             let r = di - (bg + amp * ei);
             let wr = wi * r;
             let we = wi * ei;
-            let we2 = we * ei;
-            let wre = wr * ei;
-            cc += wr * r;
+            let (vwe, vwr) = (f64x2::splat(we), f64x2::splat(wr));
+            let e1 = f64x2::new([ei, 1.0]);
+            let we2_we = vwe * e1;
+            let wre_wr = vwr * e1;
+            let vwe2 = f64x2::splat(we2_we.to_array()[0]);
+            let vwre = f64x2::splat(wre_wr.to_array()[0]);
+            let x12 = f64x2::new([xp[1], xp[2]]);
+            let x34 = f64x2::new([xp[3], xp[4]]);
+            s2_12 += vwe2 * x12;
+            s2_34 += vwe2 * x34;
+            s1_12 += vwe * x12;
+            t1_12 += vwre * x12;
+            s2_s1 += we2_we;
+            t1_t0 += wre_wr;
+            w0_cc += f64x2::new([wi, wr]) * f64x2::new([1.0, r]);
             sq += ki * r * r;
-            s2[0] += we2;
-            s2[1] += we2 * xp[1];
-            s2[2] += we2 * xp[2];
-            s2[3] += we2 * xp[3];
-            s2[4] += we2 * xp[4];
-            s1[0] += we;
-            s1[1] += we * xp[1];
-            s1[2] += we * xp[2];
-            t1[0] += wre;
-            t1[1] += wre * xp[1];
-            t1[2] += wre * xp[2];
-            t0 += wr;
-            w0 += wi;
         }
+        let [s2_0, s1_0] = s2_s1.to_array();
+        let [t1_0, t0] = t1_t0.to_array();
+        let [w0, cc] = w0_cc.to_array();
+        let [a1, a2] = s2_12.to_array();
+        let [a3, a4] = s2_34.to_array();
+        let [b1, b2] = s1_12.to_array();
+        let [c1, c2] = t1_12.to_array();
+        let s2 = [s2_0, a1, a2, a3, a4];
+        let s1 = [s1_0, b1, b2];
+        let t1 = [t1_0, c1, c2];
         let y = y_first + j as f64;
         let y2 = y * y;
         let yp = [1.0, y, y2, y2 * y, y2 * y2];
@@ -578,6 +597,7 @@ fn eval_point_moments(ws: &mut Workspace, theta: &Theta, noise: &NoiseModel) -> 
         gram,
         grad,
         finite,
+        shape: *s,
     }
 }
 
@@ -797,6 +817,7 @@ pub(crate) fn eval_general(ws: &mut Workspace, theta: &Theta, noise: &NoiseModel
         gram,
         grad,
         finite,
+        shape: Shape::of(theta),
     }
 }
 
@@ -826,14 +847,13 @@ fn sparse_rows(kind: Kind, theta: &Theta, s: &Shape) -> ([[(usize, f64); 3]; 7],
 }
 
 /// Normal matrix `N = C G Cᵀ` and gradient `g = C h` of the free parameters (n × n in the top
-/// left of a 7 × 7 array).
+/// left of a 7 × 7 array); `pass` is the evaluation at `theta`.
 pub(crate) fn normal_equations(
     kind: Kind,
     theta: &Theta,
     pass: &Pass,
 ) -> ([[f64; 7]; 7], [f64; 7]) {
-    let s = Shape::of(theta);
-    let (rows, len) = sparse_rows(kind, theta, &s);
+    let (rows, len) = sparse_rows(kind, theta, &pass.shape);
     let n = kind.n_free();
     let mut nm = [[0.0; 7]; 7];
     let mut g = [0.0; 7];
@@ -862,22 +882,37 @@ pub(crate) fn normal_equations(
 /// quadrature, error below 2e-4 of the amplitude for σ ≥ 1 px, 2e-5 in the tails 8 px out (test
 /// `neighbour_rendering_is_accurate`). Leaves data/keep alone.
 pub(crate) fn dot_factor(ws: &mut Workspace, theta: &Theta, sampling: Sampling) {
-    let s = Shape::of(theta);
     let x_first = ws.wx as f64 - theta[IX];
     let y_first = ws.wy as f64 - theta[IY];
-    let (w, h) = (ws.w, ws.h);
-    exp_grid(
-        s.a,
-        s.b,
-        s.c,
+    factor_grid(
+        theta,
+        sampling,
         x_first,
         y_first,
-        w,
-        h,
+        ws.w,
+        ws.h,
         &mut ws.tmp,
         &mut ws.v,
         &mut ws.q,
     );
+}
+
+/// [`dot_factor`] over any `w × h` grid whose first point is at `(x_first, y_first)` relative
+/// to the centre, into `out` (`v`, `q`: scratch of at least `max(w, h)`).
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn factor_grid(
+    theta: &Theta,
+    sampling: Sampling,
+    x_first: f64,
+    y_first: f64,
+    w: usize,
+    h: usize,
+    out: &mut [f64],
+    v: &mut [f64],
+    q: &mut [f64],
+) {
+    let s = Shape::of(theta);
+    exp_grid(s.a, s.b, s.c, x_first, y_first, w, h, out, v, q);
     if sampling == Sampling::Point {
         return;
     }
@@ -894,8 +929,7 @@ pub(crate) fn dot_factor(ws: &mut Workspace, theta: &Theta, sampling: Sampling) 
             let fxxxx = u2 * u2 - 6.0 * a * u2 + 3.0 * a * a;
             let fyyyy = v2 * v2 - 6.0 * c * v2 + 3.0 * c * c;
             let fxxyy = fxx * fyy - 4.0 * b * u * v + 2.0 * b * b;
-            ws.tmp[j * w + i] *=
-                1.0 + (fxx + fyy) / 24.0 + (fxxxx + fyyyy) / 1920.0 + fxxyy / 576.0;
+            out[j * w + i] *= 1.0 + (fxx + fyy) / 24.0 + (fxxxx + fyyyy) / 1920.0 + fxxyy / 576.0;
         }
     }
 }
@@ -1132,7 +1166,7 @@ mod tests {
             offset: 20.0,
         };
         set_weights(&mut ws, &truth_theta(&truth), Sampling::Point, &noise);
-        let a = eval_point_moments(&mut ws, &theta, &noise);
+        let a = eval_point_moments(&mut ws, &theta, &Shape::of(&theta), &noise);
         fill_phi_point(&mut ws, &theta);
         let b = eval_general(&mut ws, &theta, &noise);
         assert!((a.cost - b.cost).abs() < 1e-9 * b.cost);

@@ -64,68 +64,95 @@ impl Bounds {
     }
 }
 
-/// Jacobi-scaled Cholesky factor of the leading n×n block of `N + λ diag N`.
+/// `L D Lᵀ` factor (unit lower `L`, no square roots) of the leading n×n block of
+/// `N + λ diag N`, with the reciprocal pivots stored: a solve has no division.
 pub(crate) struct Factor {
     l: [[f64; 7]; 7],
-    d: [f64; 7],
+    inv_d: [f64; 7],
     n: usize,
 }
 
 impl Factor {
-    /// `None` if a diagonal entry is not positive or a pivot falls below 1e-14 (relative to
-    /// the unit diagonal of the scaled matrix).
+    /// `None` if a diagonal entry of `N` is not positive and finite, or a pivot falls below
+    /// 1e-14 of its diagonal entry of `N` (the unit diagonal of the Jacobi-scaled matrix).
     pub fn new(nm: &[[f64; 7]; 7], n: usize, lambda: f64) -> Option<Factor> {
-        let mut d = [0.0; 7];
-        for k in 0..n {
-            let v = nm[k][k];
+        // fixed sizes: the loops unroll and lose their bounds checks
+        match n {
+            7 => Factor::new_n::<7>(nm, lambda),
+            6 => Factor::new_n::<6>(nm, lambda),
+            5 => Factor::new_n::<5>(nm, lambda),
+            4 => Factor::new_n::<4>(nm, lambda),
+            3 => Factor::new_n::<3>(nm, lambda),
+            2 => Factor::new_n::<2>(nm, lambda),
+            1 => Factor::new_n::<1>(nm, lambda),
+            _ => None,
+        }
+    }
+
+    fn new_n<const N: usize>(nm: &[[f64; 7]; 7], lambda: f64) -> Option<Factor> {
+        for (k, row) in nm.iter().enumerate().take(N) {
+            let v = row[k];
             if !(v > 0.0 && v.is_finite()) {
                 return None;
             }
-            d[k] = 1.0 / v.sqrt();
         }
         let mut l = [[0.0; 7]; 7];
-        for j in 0..n {
-            let mut s = 1.0 + lambda;
+        // ld[i][k] = L_ik D_k
+        let mut ld = [[0.0; 7]; 7];
+        let mut inv_d = [0.0; 7];
+        for j in 0..N {
+            let mut p = nm[j][j] * (1.0 + lambda);
             for k in 0..j {
-                s -= l[j][k] * l[j][k];
+                p -= ld[j][k] * l[j][k];
             }
-            if s.is_nan() || s <= 1e-14 {
+            if p.is_nan() || p <= 1e-14 * nm[j][j] {
                 return None;
             }
-            let ljj = s.sqrt();
-            l[j][j] = ljj;
-            let inv = 1.0 / ljj;
-            for i in j + 1..n {
-                let mut s = nm[i][j] * d[i] * d[j];
+            let inv = 1.0 / p;
+            inv_d[j] = inv;
+            for i in j + 1..N {
+                let mut s = nm[i][j];
                 for k in 0..j {
-                    s -= l[i][k] * l[j][k];
+                    s -= ld[i][k] * l[j][k];
                 }
+                ld[i][j] = s;
                 l[i][j] = s * inv;
             }
         }
-        Some(Factor { l, d, n })
+        Some(Factor { l, inv_d, n: N })
     }
 
     pub fn solve(&self, g: &[f64; 7]) -> [f64; 7] {
-        let (l, d, n) = (&self.l, &self.d, self.n);
-        let mut y = [0.0; 7];
-        for i in 0..n {
-            let mut s = g[i] * d[i];
-            for k in 0..i {
-                s -= l[i][k] * y[k];
-            }
-            y[i] = s / l[i][i];
+        match self.n {
+            7 => self.solve_n::<7>(g),
+            6 => self.solve_n::<6>(g),
+            5 => self.solve_n::<5>(g),
+            4 => self.solve_n::<4>(g),
+            3 => self.solve_n::<3>(g),
+            2 => self.solve_n::<2>(g),
+            _ => self.solve_n::<1>(g),
         }
+    }
+
+    fn solve_n<const N: usize>(&self, g: &[f64; 7]) -> [f64; 7] {
+        let l = &self.l;
         let mut x = [0.0; 7];
-        for i in (0..n).rev() {
-            let mut s = y[i];
-            for k in i + 1..n {
+        for i in 0..N {
+            let mut s = g[i];
+            for k in 0..i {
+                s -= l[i][k] * x[k];
+            }
+            x[i] = s;
+        }
+        for i in 0..N {
+            x[i] *= self.inv_d[i];
+        }
+        for i in (0..N).rev() {
+            let mut s = x[i];
+            for k in i + 1..N {
                 s -= l[k][i] * x[k];
             }
-            x[i] = s / l[i][i];
-        }
-        for i in 0..n {
-            x[i] *= d[i];
+            x[i] = s;
         }
         x
     }
@@ -403,5 +430,50 @@ mod tests {
         assert!((d[1] * d[1] - (4.0 * 2.0 - 0.25) / det).abs() < 1e-12);
         nm[2][2] = 0.0;
         assert!(solve_damped(&nm, &g, 3, 0.0).is_none());
+    }
+
+    /// The LDLᵀ factor for every size the fit uses, damped and undamped, against the residual
+    /// of the system it solves; a rank-deficient matrix (two equal rows) is refused.
+    #[test]
+    fn ldlt_solves_the_damped_system_for_every_size() {
+        for n in 1..=7 {
+            // N = Aᵀ A + I/10 with a fixed, badly scaled A (entries over 8 decades)
+            let mut nm = [[0.0; 7]; 7];
+            for i in 0..n {
+                for j in 0..n {
+                    let mut acc = if i == j { 0.1 } else { 0.0 };
+                    for k in 0..9 {
+                        let a = |r: usize, c: usize| {
+                            ((r * 7 + c * 3) % 11) as f64 - 5.0 + 10f64.powi(c as i32 - 3)
+                        };
+                        acc += a(k, i) * a(k, j) * 10f64.powi(i as i32 + j as i32 - 6);
+                    }
+                    nm[i][j] = acc;
+                }
+            }
+            let g: [f64; 7] = std::array::from_fn(|k| (k as f64 + 1.0) * 10f64.powi(k as i32 - 3));
+            for lambda in [0.0, 1e-3, 10.0] {
+                let x = solve_damped(&nm, &g, n, lambda).expect("positive definite");
+                for i in 0..n {
+                    let r: f64 = (0..n)
+                        .map(|j| (nm[i][j] + if i == j { lambda * nm[i][i] } else { 0.0 }) * x[j])
+                        .sum();
+                    let scale: f64 =
+                        (0..n).map(|j| (nm[i][j] * x[j]).abs()).sum::<f64>() + g[i].abs();
+                    assert!(
+                        (r - g[i]).abs() <= 1e-12 * scale,
+                        "n {n} λ {lambda} row {i}"
+                    );
+                }
+            }
+            if n >= 2 {
+                let mut sing = nm;
+                sing[n - 1] = sing[n - 2];
+                for row in sing.iter_mut() {
+                    row[n - 1] = row[n - 2];
+                }
+                assert!(solve_damped(&sing, &g, n, 0.0).is_none(), "n {n}");
+            }
+        }
     }
 }
