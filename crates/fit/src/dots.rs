@@ -455,7 +455,6 @@ impl Canvas {
         if part.x_lo > part.x_hi || part.y_lo > part.y_hi {
             return;
         }
-        let ws = &mut *ws;
         let (bw, bh) = m.render(part, &mut ws.tmp, &mut ws.v, &mut ws.q);
         let amp = m.theta[IA];
         for jj in 0..bh {
