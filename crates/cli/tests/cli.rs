@@ -68,6 +68,52 @@ fn help_and_version() {
     );
 }
 
+/// `locate --help` names every fit status and every flag the code has, each in its column
+/// entry, and points at the table of docs/CONVENTIONS.md.
+#[test]
+fn locate_help_lists_every_status_and_flag() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = bostrack(&["locate", "--help"], dir.path());
+    assert_eq!(code(&o), 0);
+    let help = stdout(&o);
+    // the text of an entry: its first line and the continuation lines under it
+    let entry = |name: &str| -> String {
+        let lines: Vec<&str> = help.lines().collect();
+        let start = lines
+            .iter()
+            .position(|l| l.starts_with(&format!("  {name} ")))
+            .unwrap_or_else(|| panic!("no `{name}` entry:\n{help}"));
+        let mut text = lines[start].to_string();
+        for l in &lines[start + 1..] {
+            if !l.starts_with(&" ".repeat(23)) {
+                break;
+            }
+            text.push_str(l);
+        }
+        text
+    };
+    let words = |text: &str| -> Vec<String> {
+        text.split([' ', ',', ':'])
+            .map(str::to_owned)
+            .filter(|w| !w.is_empty())
+            .collect()
+    };
+    let statuses = words(&entry("status"));
+    for s in bostrack_core::FitStatus::ALL {
+        assert!(statuses.contains(&s.as_str().to_owned()), "{s}: {help}");
+    }
+    let flags = words(&entry("flags"));
+    let all = bostrack_core::DotFlags::from_bits(u32::MAX);
+    assert!(all.names().count() >= 16);
+    for f in all.names() {
+        assert!(flags.contains(&f.to_owned()), "{f}: {help}");
+    }
+    assert!(help.contains("docs/CONVENTIONS.md"), "{help}");
+    // the generated column list is wrapped like the text around it (clap leaves it as it is)
+    let about = &help[..help.find("Usage:").unwrap()];
+    assert!(about.lines().all(|l| l.chars().count() <= 96), "{about}");
+}
+
 #[test]
 fn usage_errors_exit_1() {
     let dir = tempfile::tempdir().unwrap();
@@ -304,6 +350,43 @@ fn check_resolves_the_demo_campaign() {
     assert!(
         grads[0].ends_with("frame_01.tif") && grads[2].ends_with("frame_03.tif"),
         "{grads:?}"
+    );
+    let invalid_if = v["invalid_if"].as_str().unwrap();
+    assert!(
+        invalid_if.contains("unconverged") && invalid_if.contains("residual"),
+        "{invalid_if}"
+    );
+}
+
+#[test]
+fn keep_flagged_is_checked_and_resolved() {
+    let root = repo_root();
+    let dir = tempfile::tempdir().unwrap();
+    let demo = root.join("testdata/demo");
+    let config = |keep: &str| {
+        format!(
+            "[input]\ndir = {:?}\n[match]\nkeep_flagged = [{keep}]\n",
+            demo.to_str().unwrap()
+        )
+    };
+    std::fs::write(dir.path().join("p.toml"), config("\"unconverged\"")).unwrap();
+    let o = bostrack(&["check", "p.toml"], dir.path());
+    assert_eq!(code(&o), 0, "{}", stderr(&o));
+    let v: Value = serde_json::from_str(&stdout(&o)).unwrap();
+    let invalid_if = v["invalid_if"].as_str().unwrap();
+    assert!(
+        !invalid_if.contains("unconverged") && invalid_if.contains("residual"),
+        "{invalid_if}"
+    );
+    std::fs::write(dir.path().join("p.toml"), config("\"outlier\"")).unwrap();
+    let o = bostrack(&["check", "p.toml"], dir.path());
+    assert_fails_with(
+        &o,
+        &[
+            "p.toml: match.keep_flagged:",
+            "\"outlier\" cannot be kept valid",
+            "valid names: unconverged, residual",
+        ],
     );
 }
 

@@ -105,6 +105,18 @@ pub enum FitStatus {
 }
 
 impl FitStatus {
+    /// Every status, in declaration order (for documentation and help texts generated from the
+    /// code; a test checks that no status is missing).
+    pub const ALL: [FitStatus; 7] = [
+        FitStatus::Converged,
+        FitStatus::IterationLimit,
+        FitStatus::Singular,
+        FitStatus::LeftWindow,
+        FitStatus::TooFewPixels,
+        FitStatus::NonFinite,
+        FitStatus::NotFitted,
+    ];
+
     /// Snake-case name used in CSV files.
     pub fn as_str(&self) -> &'static str {
         match self {
@@ -145,4 +157,31 @@ pub struct DotFit {
     pub iterations: u32,
     pub status: FitStatus,
     pub flags: DotFlags,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn all_lists_every_status_once_in_order() {
+        // No wildcard: a new status does not compile until it is given a position here, which
+        // is the reminder to put it at that position in `ALL`; the order is checked below.
+        let position = |s: FitStatus| match s {
+            FitStatus::Converged => 0,
+            FitStatus::IterationLimit => 1,
+            FitStatus::Singular => 2,
+            FitStatus::LeftWindow => 3,
+            FitStatus::TooFewPixels => 4,
+            FitStatus::NonFinite => 5,
+            FitStatus::NotFitted => 6,
+        };
+        for (k, s) in FitStatus::ALL.into_iter().enumerate() {
+            assert_eq!(position(s), k, "{s}");
+        }
+        let mut names: Vec<_> = FitStatus::ALL.iter().map(FitStatus::as_str).collect();
+        names.sort_unstable();
+        names.dedup();
+        assert_eq!(names.len(), FitStatus::ALL.len());
+    }
 }

@@ -120,6 +120,14 @@ bit_flags! {
     /// A lattice neighbour of the dot lies inside the image but outside the region of interest
     /// (the mask): light from there, if any, is in no neighbour model and may bias the fit.
     ROI_EDGE = 13, "roi_edge";
+    /// The fit did not converge jointly with its neighbours: the neighbour passes stopped at
+    /// `[fit] neighbour_passes` while the dot, or the pull of its neighbours, still moved by more
+    /// than 5 × `[fit] neighbour_tolerance` standard deviations in the last pass.
+    UNCONVERGED = 14, "unconverged";
+    /// The window's weighted residual is inconsistent with the noise model: its χ² exceeds the
+    /// quantile of the χ² distribution at the false-alarm rate `[fit] residual_false_alarm`
+    /// (an unmodelled neighbour, a defect, a speck: the bound does not describe this fit).
+    RESIDUAL = 15, "residual";
 }
 }
 

@@ -68,9 +68,10 @@ pub fn pixel_blurred(g: &Gaussian2D) -> Gaussian2D {
 pub struct DisplacementConfig {
     /// Default [`Quantities::Uncertainty`].
     pub quantities: Quantities,
-    /// Default [`ArVariant::Notes`]; [`ArVariant::Bounds`] (the ratio of the two fits' own
-    /// bounds, right under shot noise too); [`ArVariant::Published`] only to reproduce
-    /// published numbers.
+    /// Default [`ArVariant::Bounds`]: the ratio of the two fits' own bounds (`crlb_grad /
+    /// crlb_ref`), right under shot noise too; it needs the records' bounds (NaN bounds give no
+    /// AR). [`ArVariant::Notes`] is the closed form of ../shared/papers/NOTES.md §2 from the
+    /// fitted shapes alone; [`ArVariant::Published`] only to reproduce published numbers.
     pub ar_variant: ArVariant,
     /// Default [`ArShapes::Fitted`].
     pub ar_shapes: ArShapes,
@@ -83,15 +84,22 @@ pub struct DisplacementConfig {
 
 impl DisplacementConfig {
     /// Flags that make a displacement unusable by default: no partner, failed fit, missing or
-    /// merged dot, index disagreement, rejected by validation. (Border, mask, saturation,
-    /// faintness and defects are warnings: the per-dot bound already accounts for them.)
+    /// merged dot, index disagreement, rejected by validation, a fit not converged jointly with
+    /// its neighbours (`unconverged`) or whose residual the noise model does not explain
+    /// (`residual`): for those two the bound, and so `u_d`, does not describe the error.
+    /// (Border, mask, saturation, faintness, defects, a shape at its bound and a neighbour
+    /// outside the region of interest are warnings: the per-dot bound already accounts for
+    /// them, or they are for the user to judge.) The table of every flag is in
+    /// docs/CONVENTIONS.md.
     pub const DEFAULT_INVALID_IF: DotFlags = DotFlags::from_bits(
         DotFlags::UNMATCHED.bits()
             | DotFlags::FIT_FAILED.bits()
             | DotFlags::MISSING.bits()
             | DotFlags::MERGED.bits()
             | DotFlags::GRID_MISMATCH.bits()
-            | DotFlags::OUTLIER.bits(),
+            | DotFlags::OUTLIER.bits()
+            | DotFlags::UNCONVERGED.bits()
+            | DotFlags::RESIDUAL.bits(),
     );
 }
 
@@ -99,7 +107,7 @@ impl Default for DisplacementConfig {
     fn default() -> Self {
         DisplacementConfig {
             quantities: Quantities::default(),
-            ar_variant: ArVariant::Notes,
+            ar_variant: ArVariant::Bounds,
             ar_shapes: ArShapes::Fitted,
             reference_position: ReferencePosition::default(),
             invalid_if: Self::DEFAULT_INVALID_IF,
@@ -188,10 +196,11 @@ fn finite2(v: [f64; 2]) -> Option<[f64; 2]> {
 ///
 /// - `d = x_grad - x_ref`, with `x_ref` the reference fit or the stack mean
 ///   ([`ReferencePosition`]; the fit where the stack has no mean for the dot);
-/// - `AR = amplification_ratio(reference, gradient, cfg.ar_variant)` per axis, from the fitted
-///   amplitudes, sigmas and ρ of the same dot in both images (optionally blurred by the pixel
-///   first, [`ArShapes`]); with [`ArVariant::Bounds`], `crlb_grad / crlb_ref` of the two
-///   records (`bostrack_model::bound_ratio`);
+/// - AR per axis: with [`ArVariant::Bounds`] (the default), `crlb_grad / crlb_ref` of the two
+///   records (`bostrack_model::bound_ratio`); with the other variants,
+///   `amplification_ratio(reference, gradient, cfg.ar_variant)` from the fitted amplitudes,
+///   sigmas and ρ of the same dot in both images (optionally blurred by the pixel first,
+///   [`ArShapes`]);
 /// - `u_grad = AR · u_ref`, `u_refpos = u_ref` (single image) or `u_ref / sqrt(K)` (stack
 ///   mean position), `u_d = sqrt(u_refpos² + u_grad²)`.
 ///

@@ -28,6 +28,14 @@ fn fit(x0: f64, y0: f64, amplitude: f64, sx: f64, sy: f64, rho: f64) -> DotFit {
     }
 }
 
+/// The default configuration with the closed-form amplification ratio of NOTES.md §2.
+fn notes() -> DisplacementConfig {
+    DisplacementConfig {
+        ar_variant: ArVariant::Notes,
+        ..DisplacementConfig::default()
+    }
+}
+
 fn stats(images: usize, u: [f64; 2]) -> ReferenceStats {
     ReferenceStats {
         images,
@@ -36,17 +44,22 @@ fn stats(images: usize, u: [f64; 2]) -> ReferenceStats {
     }
 }
 
+/// A pair of `r` and `g` with stack statistics (K = 10, u_ref = [0.02, 0.03]).
+fn input_with<'a>(r: &'a DotFit, g: &'a DotFit) -> PairInput<'a> {
+    PairInput {
+        reference: Some(r),
+        gradient: Some(g),
+        stack: Some(stats(10, [0.02, 0.03])),
+        flags: DotFlags::NONE,
+    }
+}
+
 #[test]
 fn full_pair_single_image_reference() {
     let r = fit(50.0, 60.0, 1000.0, 1.5, 1.2, 0.0);
     let g = fit(50.5, 59.75, 600.0, 2.5, 1.2, 0.6);
-    let input = PairInput {
-        reference: Some(&r),
-        gradient: Some(&g),
-        stack: Some(stats(10, [0.02, 0.03])),
-        flags: DotFlags::NONE,
-    };
-    let p = pair_dot(&input, &DisplacementConfig::default()).unwrap();
+    let input = input_with(&r, &g);
+    let p = pair_dot(&input, &notes()).unwrap();
     assert_eq!(p.index, GridIndex::new(7, -2));
     assert_eq!(p.reference_source, Some(ReferenceSource::Fit));
     assert_eq!(p.displacement, Some([0.5, -0.25]));
@@ -120,7 +133,7 @@ fn quantities_skip_what_is_not_requested() {
     assert!(p.displacement.is_some() && p.ar.is_none() && p.u_ref.is_none() && p.u_d.is_none());
     let with_ar = DisplacementConfig {
         quantities: Quantities::AmplificationRatio,
-        ..DisplacementConfig::default()
+        ..notes()
     };
     let p = pair_dot(&input, &with_ar).unwrap();
     assert_eq!(p.ar, Some([2.0, 2.0]));
@@ -161,7 +174,7 @@ fn variants_and_shapes_are_named_options() {
     );
     let blurred = DisplacementConfig {
         ar_shapes: ArShapes::PixelBlurred,
-        ..DisplacementConfig::default()
+        ..notes()
     };
     let p = pair_dot(&input, &blurred).unwrap();
     assert_eq!(
@@ -172,6 +185,12 @@ fn variants_and_shapes_are_named_options() {
             ArVariant::Notes
         )
     );
+    // the ratio of the bounds takes no shapes: the pixel blur does not change it
+    let bounds = DisplacementConfig {
+        ar_variant: ArVariant::Bounds,
+        ..blurred
+    };
+    assert_eq!(pair_dot(&input, &bounds).unwrap().ar, Some([1.0, 1.0]));
     // the pixel blur keeps the volume and adds 1/12 px² to the variances
     let b = pixel_blurred(&g.params);
     assert!((b.volume() - g.params.volume()).abs() < 1e-9 * g.params.volume());
@@ -267,12 +286,7 @@ fn unmatched_failed_and_flagged_pairs() {
 fn row_matches_columns_and_is_deterministic() {
     let r = fit(50.0, 60.0, 1000.0, 1.5, 1.2, -0.1);
     let g = fit(50.123_456_789, 59.9, 800.0, 1.6, 1.3, 0.2);
-    let input = PairInput {
-        reference: Some(&r),
-        gradient: Some(&g),
-        stack: Some(stats(10, [0.02, 0.03])),
-        flags: DotFlags::NONE,
-    };
+    let input = input_with(&r, &g);
     let p = pair_dot(&input, &DisplacementConfig::default()).unwrap();
     let row = to_row(&p);
     assert_eq!(row.len(), COLUMNS.len());
@@ -293,4 +307,56 @@ fn row_matches_columns_and_is_deterministic() {
         to_row(&pair_dot(&input, &DisplacementConfig::default()).unwrap()),
         row
     );
+}
+
+#[test]
+fn default_ar_is_the_ratio_of_the_bounds() {
+    assert_eq!(DisplacementConfig::default().ar_variant, ArVariant::Bounds);
+    let r = fit(50.0, 60.0, 1000.0, 1.5, 1.5, 0.0);
+    let mut g = fit(50.5, 60.5, 500.0, 2.0, 1.5, 0.3);
+    (g.crlb_x, g.crlb_y) = (0.03, 0.021);
+    let input = input_with(&r, &g);
+    let p = pair_dot(&input, &DisplacementConfig::default()).unwrap();
+    let ar = p.ar.unwrap();
+    assert!((ar[0] - 0.03 / 0.012).abs() < 1e-12 && (ar[1] - 0.021 / 0.015).abs() < 1e-12);
+    // not the closed form of the shapes
+    let closed = pair_dot(&input, &notes()).unwrap().ar.unwrap();
+    assert!((closed[0] - ar[0]).abs() > 0.1, "{closed:?} {ar:?}");
+    let ug = p.u_grad.unwrap();
+    assert!((ug[0] - ar[0] * 0.02).abs() < 1e-15 && (ug[1] - ar[1] * 0.03).abs() < 1e-15);
+    // without a bound there is no AR (and no u_grad, u_d), but the displacement stays valid
+    g.crlb_x = f64::NAN;
+    let p = pair_dot(&input_with(&r, &g), &DisplacementConfig::default()).unwrap();
+    assert!(p.ar.is_none() && p.u_grad.is_none() && p.u_d.is_none());
+    assert!(p.valid && p.displacement.is_some());
+}
+
+#[test]
+fn unconverged_and_residual_fits_are_not_valid_by_default() {
+    let r = fit(50.0, 60.0, 1000.0, 1.5, 1.5, 0.0);
+    let g = fit(50.5, 60.5, 1000.0, 1.5, 1.5, 0.0);
+    let default = DisplacementConfig::default();
+    for flag in [DotFlags::UNCONVERGED, DotFlags::RESIDUAL] {
+        assert!(DisplacementConfig::DEFAULT_INVALID_IF.contains(flag));
+        // on either side of the pair
+        for (rf, gf) in [(flag, DotFlags::NONE), (DotFlags::NONE, flag)] {
+            let (mut r, mut g) = (r, g);
+            (r.flags, g.flags) = (rf, gf);
+            let p = pair_dot(&input_with(&r, &g), &default).unwrap();
+            assert!(!p.valid && p.flags == flag, "{flag}");
+            // the quantities are still computed and reported
+            assert!(p.displacement.is_some() && p.u_d.is_some());
+            // a configuration that keeps the flag keeps the dot valid
+            let mut invalid_if = DisplacementConfig::DEFAULT_INVALID_IF;
+            invalid_if.remove(flag);
+            let keep = DisplacementConfig {
+                invalid_if,
+                ..default
+            };
+            assert!(
+                pair_dot(&input_with(&r, &g), &keep).unwrap().valid,
+                "{flag}"
+            );
+        }
+    }
 }

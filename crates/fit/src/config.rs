@@ -128,7 +128,9 @@ pub enum Neighbours {
 /// max_iterations = 50       # Levenberg-Marquardt iterations (rejected steps included)
 /// tolerance = 0.05          # converged when a step is below this many standard deviations
 /// neighbours = "subtract"   # "subtract" | "none"
-/// neighbour_passes = 2      # refits with the neighbours subtracted
+/// neighbour_passes = 20     # at most this many neighbour passes (1 to 100)
+/// neighbour_tolerance = 0.1 # a dot is converged with its neighbours below this (bound units)
+/// residual_false_alarm = 1e-6 # χ² test of each window's residual ("residual" flag); 0: off
 /// bound = true              # compute the per-dot Cramér-Rao bound (crlb_x, crlb_y)
 /// ```
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -156,14 +158,35 @@ pub struct FitConfig {
     pub tolerance: f64,
     /// Default `subtract`.
     pub neighbours: Neighbours,
-    /// With `neighbours = "subtract"`: how many times every dot is refitted after its
-    /// neighbours' latest fits were subtracted (a block-Jacobi iteration; default 2). Each pass
-    /// shrinks what is left of the neighbours' influence by a factor: on the real sample (8 px
-    /// pitch, σ 1.6 px) positions after 1, 2, 3, 4 passes differ from 8 passes by a median 0.15,
-    /// 0.023, 0.005, 0.001 of their bound, but by 2.0, 0.74, 0.48, 0.32 at the 99th percentile
-    /// (wider, elongated dots converge more slowly); equal dots 4σ apart need ~8 passes for 1e-3
-    /// px.
+    /// With `neighbours = "subtract"`: the largest number of neighbour passes (1 to
+    /// [`MAX_NEIGHBOUR_PASSES`], default 20). Each pass refits, with its neighbours' latest fits
+    /// subtracted, every dot whose neighbours' models over its window changed by more than
+    /// `neighbour_tolerance` since it was last fitted (block Jacobi with an active set); the
+    /// passes stop when no dot is left to refit. A dot still not converged after the last pass
+    /// is flagged `unconverged`.
     pub neighbour_passes: u32,
+    /// With `neighbours = "subtract"`: the convergence tolerance of the neighbour iteration, in
+    /// standard deviations of a dot's position (default 0.1). From pass 3 on a dot is looked at
+    /// again when the **pull** owed to it since it was last fitted exceeds this: the sum, over
+    /// the neighbours that moved, of how far each moved (the Mahalanobis length of its change
+    /// without background) times the square root of the share of its squared profile inside this
+    /// dot's window (a Cauchy-Schwarz bound, up to the shape of the change). It is then refitted
+    /// only if one Gauss-Newton step of its last fit, with the change of its neighbours' models
+    /// over its window since that fit, moves its position by more than this (Mahalanobis length
+    /// of the position part). The passes stop when no dot is left to refit. Without noise on a
+    /// lattice of spacing 7 px at σ 1.6 px the worst dot ends 0.16 of its bound from the joint
+    /// solution (test `converged_fits_reach_the_joint_solution_on_a_dense_lattice`). A dot whose
+    /// pull (or own last move) is still above 5 × this after the last pass is flagged
+    /// `unconverged`.
+    pub neighbour_tolerance: f64,
+    /// False-alarm rate of the per-dot χ² test of the window residual (default 1e-6; 0 turns the
+    /// test off; checked at 0.01 on synthetic images, test
+    /// `residual_test_flags_at_its_false_alarm_rate_and_catches_a_speck`). Real dots have heavier
+    /// tails than the model: on the real sample's reference 573 of 12,236 dots (4.7 %) are
+    /// flagged at 1e-3, 328 at 1e-4, 164 (1.3 %) at 1e-6, 122 at 1e-8: a dot whose weighted residual sum of squares exceeds the `1 - rate` quantile of
+    /// the χ² distribution with `pixels - parameters` degrees of freedom, the noise model scaled
+    /// by the image's median reduced χ² where that exceeds 1, is flagged `residual`.
+    pub residual_false_alarm: f64,
     /// Compute `crlb_x`, `crlb_y` (default true). For the fast solver it is the inverse of
     /// the final normal matrix (the Fisher matrix of the pixels used, no extra cost); for the
     /// other estimators it is `bostrack_model::crlb_masked` at the estimated parameters.
@@ -180,7 +203,9 @@ impl Default for FitConfig {
             max_iterations: 50,
             tolerance: 0.05,
             neighbours: Neighbours::Subtract,
-            neighbour_passes: 2,
+            neighbour_passes: 20,
+            neighbour_tolerance: 0.1,
+            residual_false_alarm: 1e-6,
             bound: true,
         }
     }
@@ -200,9 +225,32 @@ impl FitConfig {
                 self.tolerance
             )));
         }
+        if !(1..=MAX_NEIGHBOUR_PASSES).contains(&self.neighbour_passes)
+            && self.neighbours == Neighbours::Subtract
+        {
+            return Err(FitError::InvalidConfig(format!(
+                "neighbour_passes must lie in 1..={MAX_NEIGHBOUR_PASSES}, got {}",
+                self.neighbour_passes
+            )));
+        }
+        if !(self.neighbour_tolerance.is_finite() && self.neighbour_tolerance > 0.0) {
+            return Err(FitError::InvalidConfig(format!(
+                "neighbour_tolerance must be a positive number, got {}",
+                self.neighbour_tolerance
+            )));
+        }
+        if !(0.0..0.5).contains(&self.residual_false_alarm) {
+            return Err(FitError::InvalidConfig(format!(
+                "residual_false_alarm must lie in [0, 0.5), got {}",
+                self.residual_false_alarm
+            )));
+        }
         Ok(())
     }
 }
+
+/// Largest accepted `neighbour_passes`.
+pub const MAX_NEIGHBOUR_PASSES: u32 = 100;
 
 #[cfg(test)]
 mod tests {
@@ -228,7 +276,8 @@ mod tests {
     #[test]
     fn doc_example_parses_to_defaults() {
         let doc = "model = \"elliptical\"\nsampling = \"auto\"\nestimator = \"lsg\"\nsolver = \"fast\"\n\
-                   max_iterations = 50\ntolerance = 0.05\nneighbours = \"subtract\"\nneighbour_passes = 2\nbound = true\n";
+                   max_iterations = 50\ntolerance = 0.05\nneighbours = \"subtract\"\nneighbour_passes = 20\n\
+                   neighbour_tolerance = 0.1\nresidual_false_alarm = 1e-6\nbound = true\n";
         assert_eq!(
             toml::from_str::<FitConfig>(doc).unwrap(),
             FitConfig::default()

@@ -5,6 +5,7 @@ use crate::config::{AUTO_SIGMA, Estimator, FitConfig, FitSampling, Neighbours};
 use crate::error::check_mask;
 use crate::eval::{IA, conditional_sigma, pixel_blur, theta_from_gaussian};
 use crate::fit::Fitter;
+use crate::joint::JointDot;
 use bostrack_core::{
     DotFit, DotFlags, FitStatus, Gaussian2D, Image, Mask, NoiseModel, Seed, Window,
 };
@@ -18,12 +19,19 @@ const REACH_SIGMAS: f64 = 5.0;
 ///
 /// Seeds flagged `MISSING` are not fitted (status `NotFitted`); every record carries its
 /// seed's flags and grid index. With [`Neighbours::Subtract`] (the default, least-squares
-/// estimator only) each dot is fitted again: the next fit sees its window minus the fitted
-/// dots (without background) of its neighbours, each over the pixels of its 5σ box (rendered
-/// once per pass into an image-sized canvas, from which a window takes its values and adds its
-/// own dot back), and starts from the previous fit; this is repeated `cfg.neighbour_passes`
-/// times (block Jacobi). Seeds closer than 1.5 px are taken as the same dot found twice and
-/// not subtracted from each other. The result does not depend on the number of threads.
+/// estimator only) the dots are fitted jointly with their neighbours by a block-Jacobi
+/// iteration with an active set: a dot is fitted to its window minus the fitted dots (without
+/// background) of its neighbours, each over the pixels of its 5σ box (rendered once per pass
+/// into an image-sized canvas, from which a window takes its values and adds its own dot back,
+/// or, when few dots are left to refit, rendered into the window), and starts from its previous
+/// fit. Pass 1 starts from the moment estimates, pass 2 refits every dot; from pass 3 on only
+/// the dots whose neighbours moved enough to move them by more than `cfg.neighbour_tolerance`
+/// of their standard deviations are refitted, until none is left or `cfg.neighbour_passes`
+/// passes were made (then dots still moving are flagged `UNCONVERGED`). Every least-squares
+/// record gets the χ² test of its window residual (flag `RESIDUAL`, see
+/// [`FitConfig::residual_false_alarm`]). Seeds closer than 1.5 px are taken as the same dot
+/// found twice and not subtracted from each other. The result does not depend on the number of
+/// threads.
 pub fn fit_dots(
     img: &Image,
     mask: Option<&Mask>,
@@ -31,19 +39,53 @@ pub fn fit_dots(
     cfg: &FitConfig,
     noise: &NoiseModel,
 ) -> Result<Vec<DotFit>, FitError> {
+    fit_dots_report(img, mask, seeds, cfg, noise).map(|r| r.0)
+}
+
+/// How the neighbour iteration of [`fit_dots_report`] / [`refit_dots_report`] went.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct PassReport {
+    /// Passes made (0 without neighbour subtraction).
+    pub passes: u32,
+    /// Dots refitted in each pass.
+    pub refits: Vec<usize>,
+    /// Whether the iteration stopped because no dot was left to refit (rather than at
+    /// `neighbour_passes`; true without neighbour subtraction).
+    pub converged: bool,
+    /// Dots flagged `UNCONVERGED`.
+    pub unconverged: usize,
+}
+
+/// [`fit_dots`], with how its neighbour iteration went.
+pub fn fit_dots_report(
+    img: &Image,
+    mask: Option<&Mask>,
+    seeds: &[Seed],
+    cfg: &FitConfig,
+    noise: &NoiseModel,
+) -> Result<(Vec<DotFit>, PassReport), FitError> {
     cfg.validate()?;
     check_mask(img, mask)?;
-    if cfg.neighbours == Neighbours::None
-        || cfg.estimator != Estimator::Lsg
-        || cfg.neighbour_passes == 0
-    {
-        return Ok(seeds
+    if cfg.neighbours == Neighbours::None || cfg.estimator != Estimator::Lsg {
+        let items: Vec<Item> = seeds
             .par_iter()
             .map_init(
                 || Fitter::new(cfg),
-                |f, s| fit_seed(f, img, mask, s, None, noise),
+                |f, s| {
+                    let fit = fit_seed(f, img, mask, s, None, noise);
+                    Item::from_fitter(fit, f)
+                },
             )
-            .collect());
+            .collect();
+        return Ok((
+            finish(items, cfg),
+            PassReport {
+                passes: 0,
+                refits: Vec::new(),
+                converged: true,
+                unconverged: 0,
+            },
+        ));
     }
     // first neighbour models: the moment estimates (IWC record), which stop at the saddle
     // towards a touching neighbour, whereas a plain least-squares fit of a window holding two
@@ -53,54 +95,64 @@ pub fn fit_dots(
         bound: false,
         ..cfg.clone()
     };
-    let mut prev: Vec<DotFit> = seeds
+    let prev: Vec<DotFit> = seeds
         .par_iter()
         .map_init(
             || Fitter::new(&iwc),
             |f, s| fit_seed(f, img, mask, s, None, noise),
         )
         .collect();
-    // one canvas allocation for all passes
     let mut canvas_buf = Vec::new();
-    for pass in 0..cfg.neighbour_passes {
-        let last = pass + 1 == cfg.neighbour_passes;
-        let kind = SubtractPass {
-            first: pass == 0,
-            last,
+    let it = Iteration::new(img, mask, seeds, cfg, noise);
+    // pass 1: every dot, from the moments, loose tolerance (a neighbour model for pass 2)
+    let first = it.pass(
+        &prev,
+        PassKind {
+            intermediate: true,
             warm: false,
+        },
+        None,
+        &mut canvas_buf,
+    );
+    let n_fit = fitted(seeds);
+    if cfg.neighbour_passes == 1 {
+        let report = PassReport {
+            passes: 1,
+            refits: vec![n_fit],
+            converged: false,
+            unconverged: 0,
         };
-        prev = subtract_pass(
-            img,
-            mask,
-            seeds,
-            cfg,
-            noise,
-            &prev,
-            kind,
-            None,
-            &mut canvas_buf,
-        );
+        return Ok((finish(first, cfg), report));
     }
-    Ok(prev)
+    // pass 2: every dot again, to the full tolerance (with the weights check)
+    let fits: Vec<DotFit> = first.iter().map(|i| i.fit).collect();
+    let second = it.pass(
+        &fits,
+        PassKind {
+            intermediate: false,
+            warm: false,
+        },
+        None,
+        &mut canvas_buf,
+    );
+    Ok(it.converge(second, vec![n_fit, n_fit], &mut canvas_buf))
 }
 
-/// Fits every seed's window once, starting from `prior` (one record per seed: fits of the same
+/// Fits every seed's window starting from `prior` (one record per seed: fits of the same
 /// dots in a similar image, e.g. the reference's fits moved by the camera's common shift, for
-/// the images of a no-flow stack). The neighbours are modelled by the prior, noise included:
-/// positions differ from [`fit_dots`]' by up to ~0.4 of the bound on an 8 px lattice at peak
-/// SNR 100 (test `refit_with_tails_equals_refit_without_and_both_find_the_dots`); for a stack
-/// that model is the same in every image, so the scatter (u_ref) is not affected.
+/// the images of a no-flow stack).
 ///
-/// With [`Neighbours::Subtract`] (least-squares estimator) each window first has the `prior`
-/// dots of its neighbours subtracted: one block-Jacobi pass from `prior` instead of
-/// [`fit_dots`]' moment estimates and `neighbour_passes` passes. Otherwise each window is
-/// fitted from its prior's shape. A prior that is not a usable fit makes its dot start from
-/// the seed (and, as a neighbour, not be subtracted).
+/// With [`Neighbours::Subtract`] (least-squares estimator) the first pass fits each window
+/// after subtracting the `prior` dots of its neighbours (from `tails` where given); then the
+/// iteration goes on as in [`fit_dots`] (from pass 2 on, only dots whose neighbours moved
+/// enough are refitted), so the result converges to the same joint solution. Otherwise each
+/// window is fitted once from its prior's shape. A prior that is not a usable fit makes its dot
+/// start from the seed (and, as a neighbour, not be subtracted).
 ///
 /// `tails`: the neighbours' tails rendered once ([`NeighbourTails`], from the unmoved prior);
-/// used for every window that is the one they were rendered for, instead of rendering the
-/// `prior` neighbours again (the caller decides that `prior` moved little enough: see
-/// [`NeighbourTails`]).
+/// used in the first pass for every window that is the one they were rendered for, instead of
+/// rendering the `prior` neighbours again (the caller decides that `prior` moved little enough:
+/// see [`NeighbourTails`]).
 ///
 /// Errors: as [`fit_dots`], and [`FitError::InvalidConfig`] if `prior` and `seeds` differ in
 /// length.
@@ -113,6 +165,19 @@ pub fn refit_dots(
     prior: &[DotFit],
     tails: Option<&NeighbourTails>,
 ) -> Result<Vec<DotFit>, FitError> {
+    refit_dots_report(img, mask, seeds, cfg, noise, prior, tails).map(|r| r.0)
+}
+
+/// [`refit_dots`], with how its neighbour iteration went.
+pub fn refit_dots_report(
+    img: &Image,
+    mask: Option<&Mask>,
+    seeds: &[Seed],
+    cfg: &FitConfig,
+    noise: &NoiseModel,
+    prior: &[DotFit],
+    tails: Option<&NeighbourTails>,
+) -> Result<(Vec<DotFit>, PassReport), FitError> {
     cfg.validate()?;
     if prior.len() != seeds.len() {
         return Err(FitError::InvalidConfig(format!(
@@ -123,123 +188,567 @@ pub fn refit_dots(
     }
     check_mask(img, mask)?;
     if cfg.neighbours == Neighbours::Subtract && cfg.estimator == Estimator::Lsg {
-        return Ok(subtract_pass(
-            img,
-            mask,
-            seeds,
-            cfg,
-            noise,
+        let mut canvas_buf = Vec::new();
+        let it = Iteration::new(img, mask, seeds, cfg, noise);
+        let first = it.pass(
             prior,
-            SubtractPass {
-                first: true,
-                last: true,
+            PassKind {
+                intermediate: false,
                 warm: true,
             },
             tails,
-            &mut Vec::new(),
-        ));
+            &mut canvas_buf,
+        );
+        return Ok(it.converge(first, vec![fitted(seeds)], &mut canvas_buf));
     }
-    Ok(seeds
+    let items: Vec<Item> = seeds
         .par_iter()
         .zip(prior)
         .map_init(
             || Fitter::new(cfg),
             |f, (s, p)| {
                 let hint = p.status.is_ok().then_some(&p.params);
-                fit_seed(f, img, mask, s, hint, noise)
-            },
-        )
-        .collect())
-}
-
-/// Which pass [`subtract_pass`] is: `first` (`prev` holds moment estimates: every dot is
-/// fitted), `last` (the fits are final: full tolerance and the weights check), `warm` (`prev`
-/// are least-squares fits of the same dots in an image of the same scene: the weights at the
-/// start are right, no check).
-#[derive(Clone, Copy)]
-struct SubtractPass {
-    first: bool,
-    last: bool,
-    warm: bool,
-}
-
-/// One block-Jacobi pass: every dot refitted after subtracting its neighbours' fits of `prev`
-/// (`first`: `prev` holds the moment estimates, so every dot is fitted even without neighbours).
-fn subtract_pass(
-    img: &Image,
-    mask: Option<&Mask>,
-    seeds: &[Seed],
-    cfg: &FitConfig,
-    noise: &NoiseModel,
-    prev: &[DotFit],
-    kind: SubtractPass,
-    tails: Option<&NeighbourTails>,
-    canvas_buf: &mut Vec<f64>,
-) -> Vec<DotFit> {
-    let SubtractPass { first, last, warm } = kind;
-    // every neighbour's rendering parameters once per pass, not once per window it reaches
-    let hood = Neighbourhood::new(prev, seeds, cfg.sampling);
-    // without rendered tails: every neighbour model once into one canvas
-    let canvas = tails.is_none().then(|| {
-        Canvas::render(
-            &hood.models,
-            img.width(),
-            img.height(),
-            std::mem::take(canvas_buf),
-        )
-    });
-    let fits = seeds
-        .par_iter()
-        .enumerate()
-        .map_init(
-            || {
-                let mut f = Fitter::new(cfg);
-                f.intermediate = !last;
-                f.warm = warm;
-                (f, Vec::new())
-            },
-            |(f, near), (i, s)| {
-                if s.flags.contains(DotFlags::MISSING) {
-                    return prev[i];
-                }
-                let flags = f.load_image(img, mask, s.window);
-                let own = &prev[i];
-                let win = Window::new(f.ws.wx, f.ws.wy, f.ws.w, f.ws.h);
-                let subtracted = match (tails.and_then(|t| t.for_window(i, win)), &canvas) {
-                    (Some((sum, count)), _) => {
-                        let ws = &mut f.ws;
-                        for (k, v) in sum.iter().enumerate() {
-                            ws.data[k] -= ws.keep[k] * v;
-                        }
-                        count
-                    }
-                    (None, Some(canvas)) => canvas.subtract_neighbours(&mut f.ws, i, &hood, near),
-                    (None, None) => for_each_neighbour(&mut f.ws, i, &hood, near, |ws, amp| {
-                        let n = ws.len();
-                        for k in 0..n {
-                            ws.data[k] -= ws.keep[k] * amp * ws.tmp[k];
-                        }
-                    }),
-                };
-                if subtracted == 0 && !first {
-                    return prev[i];
-                }
-                let (start, hint) = if own.status.is_ok() {
-                    ([own.params.x0, own.params.y0], Some(own.params))
-                } else {
-                    (s.centre, None)
-                };
-                let mut fit = f.fit_loaded(flags, start, hint.as_ref(), noise);
-                fit.index = s.index;
-                fit.flags |= s.flags;
-                fit
+                let fit = fit_seed(f, img, mask, s, hint, noise);
+                Item::from_fitter(fit, f)
             },
         )
         .collect();
-    if let Some(c) = canvas {
-        *canvas_buf = c.values;
+    Ok((
+        finish(items, cfg),
+        PassReport {
+            passes: 0,
+            refits: Vec::new(),
+            converged: true,
+            unconverged: 0,
+        },
+    ))
+}
+
+/// How many seeds are fitted (not flagged missing).
+fn fitted(seeds: &[Seed]) -> usize {
+    seeds
+        .iter()
+        .filter(|s| !s.flags.contains(DotFlags::MISSING))
+        .count()
+}
+
+/// A dot's record in the iteration, with what its last fit left beside it.
+#[derive(Clone, Debug)]
+struct Item {
+    fit: DotFit,
+    /// Window χ² and its degrees of freedom (NaN / 0: not a least-squares fit).
+    chi2: f64,
+    dof: usize,
+    /// How far the dot moved in its last refit (standard deviations; 0: not refitted).
+    moved: f64,
+    /// The Fisher matrix of the last fit in point-model coordinates (see `LastFit`).
+    fisher: Option<[[f64; 7]; 7]>,
+    /// The neighbours' models summed over the window when the dot was last fitted (empty: not
+    /// known), to predict how far their later changes move it.
+    seen: Vec<f64>,
+}
+
+impl Item {
+    fn from_fitter(fit: DotFit, f: &Fitter) -> Item {
+        let lsg = f.config().estimator == Estimator::Lsg && fit.status != FitStatus::NotFitted;
+        Item {
+            fit,
+            chi2: if lsg { f.last.chi2 } else { f64::NAN },
+            dof: if lsg { f.last.dof } else { 0 },
+            moved: if lsg { f.last.moved } else { f64::INFINITY },
+            fisher: if lsg { f.last.point_fisher } else { None },
+            seen: Vec::new(),
+        }
     }
-    fits
+
+    /// A record kept as it is (not fitted in this pass).
+    fn kept(fit: DotFit) -> Item {
+        Item {
+            fit,
+            chi2: f64::NAN,
+            dof: 0,
+            moved: 0.0,
+            fisher: None,
+            seen: Vec::new(),
+        }
+    }
+}
+
+/// How far (in standard deviations of its position: the Mahalanobis length of the position
+/// part) the dot of `item` would move if refitted now that its neighbours' models over the
+/// window are `now` instead of `item.seen`: one Gauss-Newton step `F⁻¹ Σ w ∇μ Δ` of the
+/// linearised fit with the Fisher matrix of its last fit. `None` where that cannot be predicted (no point-model
+/// Fisher matrix, another window).
+fn predicted_move(
+    ws: &mut crate::eval::Workspace,
+    item: &Item,
+    now: &[f64],
+    kind: crate::eval::Kind,
+    sampling: FitSampling,
+    noise: &NoiseModel,
+) -> Option<f64> {
+    let fisher = item.fisher.as_ref()?;
+    let n = ws.len();
+    if item.seen.len() != n || now.len() != n || !item.fit.status.is_ok() {
+        return None;
+    }
+    let th = theta_from_gaussian(&item.fit.params);
+    let tb = if sampling == FitSampling::Auto {
+        pixel_blur(&th)
+    } else {
+        th
+    };
+    crate::eval::dot_factor(ws, &tb, Sampling::Point);
+    let (amp, bg) = (tb[IA], tb[crate::eval::IB]);
+    // Σ w Δ basis, basis = E·{1, X, Y, X², XY, Y²}, 1
+    let mut g = [0.0f64; 7];
+    for j in 0..ws.h {
+        let y = (ws.wy + j as i64) as f64 - tb[crate::eval::IY];
+        for i in 0..ws.w {
+            let k = j * ws.w + i;
+            let d = now[k] - item.seen[k];
+            if ws.keep[k] == 0.0 || d == 0.0 {
+                continue;
+            }
+            let x = (ws.wx + i as i64) as f64 - tb[crate::eval::IX];
+            let e = ws.tmp[k];
+            let wd = d / noise.variance(bg + amp * e);
+            let we = wd * e;
+            g[0] += we;
+            g[1] += we * x;
+            g[2] += we * y;
+            g[3] += we * x * x;
+            g[4] += we * x * y;
+            g[5] += we * y * y;
+            g[6] += wd;
+        }
+    }
+    let c = kind.coefficients(&tb, &crate::eval::Shape::of(&tb));
+    let nf = kind.n_free();
+    let mut v = [0.0; 7];
+    for k in 0..nf {
+        v[k] = (0..7).map(|b| c[k][b] * g[b]).sum();
+    }
+    // the position part of the step, in its own (marginal) standard deviations
+    let step = crate::solver::solve_damped(fisher, &v, nf, 0.0)?;
+    let mut e = [0.0; 7];
+    e[0] = 1.0;
+    let cx = crate::solver::solve_damped(fisher, &e, nf, 0.0)?;
+    e = [0.0; 7];
+    e[1] = 1.0;
+    let cy = crate::solver::solve_damped(fisher, &e, nf, 0.0)?;
+    // Σ = [[cx0, cx1], [cy0, cy1]] (symmetric): δᵀ Σ⁻¹ δ
+    let (a, b, c) = (cx[0], 0.5 * (cx[1] + cy[0]), cy[1]);
+    let det = a * c - b * b;
+    let (dx, dy) = (step[0], step[1]);
+    let m2 = (c * dx * dx - 2.0 * b * dx * dy + a * dy * dy) / det;
+    (det > 0.0 && m2.is_finite()).then(|| m2.max(0.0).sqrt())
+}
+
+/// Which pass [`Iteration::pass`] is: `intermediate` (loose tolerance, no weights check: the
+/// fits are refitted later), `warm` (the start is a least-squares fit of the same dot, the
+/// weights at the start are right: no check).
+#[derive(Clone, Copy)]
+struct PassKind {
+    intermediate: bool,
+    warm: bool,
+}
+
+/// Fewer dots than this fraction of all refitted in a pass: their neighbours are rendered into
+/// each window instead of the whole image into a canvas.
+const CANVAS_FRACTION: f64 = 0.25;
+
+/// Refits that did not move a dot less than the one before, after which it is frozen (not
+/// refitted again; flagged `unconverged` if it or its neighbours' pull still moves).
+const STRIKES: u8 = 3;
+
+/// A dot still moving by more than this many times `neighbour_tolerance` when the passes stop
+/// at their limit is flagged `UNCONVERGED`.
+const UNCONVERGED_FACTOR: f64 = 5.0;
+
+/// The block-Jacobi neighbour iteration over one image.
+struct Iteration<'a> {
+    img: &'a Image,
+    mask: Option<&'a Mask>,
+    seeds: &'a [Seed],
+    cfg: &'a FitConfig,
+    noise: &'a NoiseModel,
+}
+
+impl<'a> Iteration<'a> {
+    fn new(
+        img: &'a Image,
+        mask: Option<&'a Mask>,
+        seeds: &'a [Seed],
+        cfg: &'a FitConfig,
+        noise: &'a NoiseModel,
+    ) -> Iteration<'a> {
+        Iteration {
+            img,
+            mask,
+            seeds,
+            cfg,
+            noise,
+        }
+    }
+
+    /// Passes from `passes + 1` on (`items`: the result of pass `passes`), each refitting only
+    /// the dots whose neighbours moved by enough, until none is left or the pass limit; then the
+    /// flags (`UNCONVERGED`, `RESIDUAL`).
+    fn converge(
+        &self,
+        mut items: Vec<Item>,
+        mut refits: Vec<usize>,
+        canvas_buf: &mut Vec<f64>,
+    ) -> (Vec<DotFit>, PassReport) {
+        let tol = self.cfg.neighbour_tolerance;
+        // dots whose refit moved them no less than the one before, for the third time (not
+        // contracting: an oscillation or a cycle of failing and recovering fits), are not
+        // refitted again
+        let mut strikes = vec![0u8; items.len()];
+        let mut owed = vec![0.0f64; items.len()];
+        loop {
+            let passes = refits.len() as u32;
+            let fits: Vec<DotFit> = items.iter().map(|i| i.fit).collect();
+            let hood = Neighbourhood::new(&fits, self.seeds, self.cfg.sampling);
+            // the pull owed since each dot was last fitted or checked (small pulls add up)
+            let now = self.neighbour_pull(&items, &hood);
+            for (o, p) in owed.iter_mut().zip(&now) {
+                *o += p;
+            }
+            let pull = owed.clone();
+            let select: Vec<bool> = pull
+                .iter()
+                .zip(&strikes)
+                .map(|(&p, &k)| p > tol && k < STRIKES)
+                .collect();
+            let count = select.iter().filter(|&&s| s).count();
+            if count == 0 || passes >= self.cfg.neighbour_passes {
+                let mut unconverged = 0;
+                let limit = UNCONVERGED_FACTOR * tol;
+                for (((it, &p), &k), &pn) in items.iter_mut().zip(&pull).zip(&strikes).zip(&now) {
+                    let f = k >= STRIKES;
+                    // stopped at the limit, or frozen: dots that (or whose neighbours) still moved
+                    let own = it.moved.is_finite() && it.moved > limit;
+                    let moving = if f { pn > tol || own } else { p > limit || own };
+                    if it.fit.status.is_ok() && moving && (count > 0 || f) {
+                        it.fit.flags |= DotFlags::UNCONVERGED;
+                        unconverged += 1;
+                    }
+                }
+                let report = PassReport {
+                    passes,
+                    refits,
+                    converged: count == 0 && unconverged == 0,
+                    unconverged,
+                };
+                return (self.finish(items), report);
+            }
+            let windowed = (count as f64) < CANVAS_FRACTION * self.seeds.len() as f64;
+            let next = self.pass_with(
+                &fits,
+                Some(&select),
+                PassKind {
+                    intermediate: false,
+                    warm: true,
+                },
+                None,
+                canvas_buf,
+                windowed,
+                Some(&hood),
+                Some(&items),
+            );
+            let mut refitted = 0;
+            for (o, &sel) in owed.iter_mut().zip(&select) {
+                if sel {
+                    *o = 0.0;
+                }
+            }
+            for ((it, n), k) in items.iter_mut().zip(next).zip(&mut strikes) {
+                match n {
+                    Some(n) => {
+                        let before = it.moved;
+                        // (from pass 4 on: passes 1-3 start from the moments and loose fits)
+                        if passes >= 3 && n.moved > tol && n.moved >= before {
+                            *k += 1;
+                        }
+                        *it = n;
+                        refitted += 1;
+                    }
+                    // not selected, or predicted to move by less than the tolerance
+                    None => it.moved = 0.0,
+                }
+            }
+            refits.push(refitted);
+        }
+    }
+
+    /// The final records: the joint bound where neighbours overlap the window (see
+    /// [`crate::joint`]), then the χ² test ([`finish`]).
+    fn finish(&self, mut items: Vec<Item>) -> Vec<DotFit> {
+        if self.cfg.bound {
+            let fits: Vec<DotFit> = items.iter().map(|i| i.fit).collect();
+            let hood = Neighbourhood::new(&fits, self.seeds, self.cfg.sampling);
+            let kind = crate::eval::Kind::from_model(self.cfg.model);
+            let (w, h) = (self.img.width(), self.img.height());
+            let keep = |x: i64, y: i64| crate::joint::usable(self.img, self.mask, x, y);
+            let bounds: Vec<Option<[f64; 2]>> = self
+                .seeds
+                .par_iter()
+                .enumerate()
+                .map_init(
+                    || (Vec::new(), Vec::new()),
+                    |(near, nbs), (i, s)| {
+                        let f = &fits[i];
+                        if !f.crlb_x.is_finite() || s.flags.contains(DotFlags::MISSING) {
+                            return None;
+                        }
+                        let win = s.window.clip(w, h)?;
+                        nbs.clear();
+                        hood.touching(i, win, near, |j, m, same| {
+                            if same || m.share_in(win) < crate::joint::MIN_SHARE {
+                                return;
+                            }
+                            let wj = self.seeds[j].window.clip(w, h);
+                            if let Some(d) = wj.and_then(|wj| JointDot::new(&fits[j], wj)) {
+                                nbs.push(d);
+                            }
+                        });
+                        if nbs.is_empty() {
+                            return None;
+                        }
+                        let dot = JointDot::new(f, win)?;
+                        crate::joint::joint_bound(kind, &dot, nbs, self.noise, &keep)
+                    },
+                )
+                .collect();
+            for (it, b) in items.iter_mut().zip(bounds) {
+                if let Some([bx, by]) = b {
+                    it.fit.crlb_x = bx;
+                    it.fit.crlb_y = by;
+                }
+            }
+        }
+        finish(items, self.cfg)
+    }
+
+    /// For every dot, the sum over its touching neighbours of how far each moved in its last
+    /// refit (standard deviations) times the square root of the share of its squared profile
+    /// that falls into this dot's window: an estimate of how far the dot would move if refitted
+    /// now (Cauchy-Schwarz on the linearised fit), in its standard deviations.
+    fn neighbour_pull(&self, items: &[Item], hood: &Neighbourhood) -> Vec<f64> {
+        self.seeds
+            .par_iter()
+            .enumerate()
+            .map_init(Vec::new, |near, (i, s)| {
+                if s.flags.contains(DotFlags::MISSING) {
+                    return 0.0;
+                }
+                let win = s.window;
+                let mut pull = 0.0;
+                hood.index.near(win, near);
+                if near.iter().all(|&j| items[j].moved == 0.0 || j == i) {
+                    return 0.0;
+                }
+                hood.touching(i, win, near, |j, m, same| {
+                    let moved = items[j].moved;
+                    if same || moved == 0.0 {
+                        return;
+                    }
+                    let share = m.share_in(win);
+                    pull += if moved.is_finite() {
+                        moved * share.sqrt()
+                    } else if share > 0.0 {
+                        f64::INFINITY
+                    } else {
+                        0.0
+                    };
+                });
+                pull
+            })
+            .collect()
+    }
+
+    /// A pass over every dot (those not fitted, flagged missing, keep their record).
+    fn pass(
+        &self,
+        prev: &[DotFit],
+        kind: PassKind,
+        tails: Option<&NeighbourTails>,
+        canvas_buf: &mut Vec<f64>,
+    ) -> Vec<Item> {
+        self.pass_with(prev, None, kind, tails, canvas_buf, false, None, None)
+            .into_iter()
+            .zip(prev)
+            .map(|(it, p)| it.unwrap_or_else(|| Item::kept(*p)))
+            .collect()
+    }
+
+    /// One block-Jacobi pass: every selected dot (all without `select`) refitted after
+    /// subtracting its neighbours' fits of `prev`; the others keep their record of `prev`.
+    /// `windowed`: render each selected window's neighbours into it instead of a canvas.
+    #[allow(clippy::too_many_arguments)]
+    fn pass_with(
+        &self,
+        prev: &[DotFit],
+        select: Option<&[bool]>,
+        kind: PassKind,
+        tails: Option<&NeighbourTails>,
+        canvas_buf: &mut Vec<f64>,
+        windowed: bool,
+        hood: Option<&Neighbourhood>,
+        check: Option<&[Item]>,
+    ) -> Vec<Option<Item>> {
+        let (img, mask, seeds, cfg, noise) =
+            (self.img, self.mask, self.seeds, self.cfg, self.noise);
+        // every neighbour's rendering parameters once per pass, not once per window it reaches
+        let own_hood;
+        let hood = match hood {
+            Some(h) => h,
+            None => {
+                own_hood = Neighbourhood::new(prev, seeds, cfg.sampling);
+                &own_hood
+            }
+        };
+        // without rendered tails: every neighbour model once into one canvas
+        let canvas = (tails.is_none() && !windowed).then(|| {
+            Canvas::render(
+                &hood.models,
+                img.width(),
+                img.height(),
+                std::mem::take(canvas_buf),
+            )
+        });
+        let fkind = crate::eval::Kind::from_model(cfg.model);
+        let items = seeds
+            .par_iter()
+            .enumerate()
+            .map_init(
+                || {
+                    let mut f = Fitter::new(cfg);
+                    f.intermediate = kind.intermediate;
+                    f.warm = kind.warm;
+                    (f, Vec::new(), Vec::new())
+                },
+                |(f, near, raw), (i, s)| {
+                    if s.flags.contains(DotFlags::MISSING) || select.is_some_and(|sel| !sel[i]) {
+                        return None;
+                    }
+                    let flags = f.load_image(img, mask, s.window);
+                    let own = &prev[i];
+                    let win = Window::new(f.ws.wx, f.ws.wy, f.ws.w, f.ws.h);
+                    raw.clear();
+                    raw.extend_from_slice(&f.ws.data[..f.ws.len()]);
+                    match (tails.and_then(|t| t.for_window(i, win)), &canvas) {
+                        (Some((sum, _)), _) => {
+                            let ws = &mut f.ws;
+                            for (k, v) in sum.iter().enumerate() {
+                                ws.data[k] -= ws.keep[k] * v;
+                            }
+                        }
+                        (None, Some(canvas)) => {
+                            canvas.subtract_neighbours(&mut f.ws, i, hood, near);
+                        }
+                        (None, None) => {
+                            for_each_neighbour(&mut f.ws, i, hood, near, |ws, amp| {
+                                let n = ws.len();
+                                for k in 0..n {
+                                    ws.data[k] -= ws.keep[k] * amp * ws.tmp[k];
+                                }
+                            });
+                        }
+                    }
+                    // the neighbours' models over the window, as this fit sees them
+                    let seen: Vec<f64> = raw.iter().zip(&f.ws.data).map(|(r, d)| r - d).collect();
+                    if let Some(item) = check.map(|c| &c[i]) {
+                        let moves =
+                            predicted_move(&mut f.ws, item, &seen, fkind, cfg.sampling, noise);
+                        if moves.is_some_and(|m| m <= cfg.neighbour_tolerance) {
+                            return None;
+                        }
+                    }
+                    let (start, hint) = if own.status.is_ok() {
+                        ([own.params.x0, own.params.y0], Some(own.params))
+                    } else {
+                        (s.centre, None)
+                    };
+                    let mut fit = f.fit_loaded(flags, start, hint.as_ref(), noise);
+                    fit.index = s.index;
+                    fit.flags |= s.flags;
+                    let mut item = Item::from_fitter(fit, f);
+                    item.seen = seen;
+                    Some(item)
+                },
+            )
+            .collect();
+        if let Some(c) = canvas {
+            *canvas_buf = c.values;
+        }
+        items
+    }
+}
+
+/// The records of the last pass with the χ² test applied (`RESIDUAL`). The noise model is
+/// scaled by the median reduced χ² of the image's least-squares fits where that exceeds the
+/// median of the χ² distribution (a noise model that is off for the whole image is not a
+/// per-dot problem); a dot is flagged when its scaled χ² exceeds the `1 - residual_false_alarm`
+/// quantile of the χ² distribution of its degrees of freedom.
+fn finish(items: Vec<Item>, cfg: &FitConfig) -> Vec<DotFit> {
+    let alpha = cfg.residual_false_alarm;
+    let usable = |it: &Item| it.fit.status.is_ok() && it.chi2.is_finite() && it.dof > 0;
+    if alpha <= 0.0 || !items.iter().any(usable) {
+        return items.into_iter().map(|it| it.fit).collect();
+    }
+    // median of χ²/median(χ²_dof) over the usable fits
+    let mut ratios: Vec<f64> = items
+        .iter()
+        .filter(|it| usable(it))
+        .map(|it| it.chi2 / chi2_median(it.dof))
+        .collect();
+    let mid = ratios.len() / 2;
+    let (_, m, _) = ratios.select_nth_unstable_by(mid, f64::total_cmp);
+    let scale = m.max(1.0);
+    let z = normal_upper_quantile(alpha);
+    items
+        .into_iter()
+        .map(|it| {
+            let mut fit = it.fit;
+            if usable(&it) && it.chi2 / scale > chi2_quantile(it.dof, z) {
+                fit.flags |= DotFlags::RESIDUAL;
+            }
+            fit
+        })
+        .collect()
+}
+
+/// Median of the χ² distribution with `k` degrees of freedom (Wilson-Hilferty).
+fn chi2_median(k: usize) -> f64 {
+    chi2_quantile(k, 0.0)
+}
+
+/// The quantile of the χ² distribution with `k` degrees of freedom at the standard normal
+/// quantile `z` (Wilson-Hilferty: relative error below 1e-3 at the 0.999 quantile for k ≥ 10).
+fn chi2_quantile(k: usize, z: f64) -> f64 {
+    let k = k as f64;
+    let c = 2.0 / (9.0 * k);
+    k * (1.0 - c + z * c.sqrt()).max(0.0).powi(3)
+}
+
+/// `z` with `P(Z > z) = p` for a standard normal `Z` (bisection on `erfc`, to 1e-12).
+fn normal_upper_quantile(p: f64) -> f64 {
+    let (mut lo, mut hi) = (-40.0f64, 40.0f64);
+    for _ in 0..200 {
+        let mid = 0.5 * (lo + hi);
+        if 0.5 * libm::erfc(mid / std::f64::consts::SQRT_2) > p {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+        if hi - lo < 1e-12 {
+            break;
+        }
+    }
+    0.5 * (lo + hi)
 }
 
 /// The fits of a pass as neighbour models (`None`: not a usable fit), bucketed for finding the
@@ -652,6 +1161,17 @@ impl NeighbourModel {
                 }
             }
         }
+    }
+
+    /// The share of the dot's squared profile `∫G²` that falls on the pixel area of `w` (the
+    /// product of the two marginal shares: exact for ρ = 0; `G²` has σ/√2 per axis).
+    fn share_in(&self, w: Window) -> f64 {
+        let axis = |c: f64, r: f64, lo: i64, n: usize| {
+            let s = r / REACH_SIGMAS;
+            let (a, b) = (lo as f64 - 0.5 - c, (lo + n as i64) as f64 - 0.5 - c);
+            (0.5 * (libm::erf(b / s) - libm::erf(a / s))).clamp(0.0, 1.0)
+        };
+        axis(self.x0, self.rx, w.x, w.width) * axis(self.y0, self.ry, w.y, w.height)
     }
 
     /// Whether the dot's 5σ ellipse-bounding box touches the window's pixel area.

@@ -63,6 +63,36 @@ pub struct Fitter {
     pub(crate) intermediate: bool,
     /// The start is a fit of the same dot (weights there are right): no reweighting check.
     pub(crate) warm: bool,
+    /// What the last least-squares fit of this fitter left beside its record.
+    pub(crate) last: LastFit,
+}
+
+/// Beside a least-squares record: the window's χ² and how far the fit moved from its hint.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct LastFit {
+    /// `Σ w r²` at the solution (weights of the noise model; NaN if not a least-squares fit).
+    pub chi2: f64,
+    /// Used pixels minus free parameters.
+    pub dof: usize,
+    /// Mahalanobis length `sqrt(Δᵀ F Δ)` of the change from the hint to the solution (F the
+    /// Fisher matrix at the solution; the change in standard deviations); infinite without a
+    /// hint.
+    pub moved: f64,
+    /// The Fisher matrix of the free parameters at the solution, when it is that of the
+    /// point-sampled model of θ (the pixel-blurred dot for `auto`, θ itself for `point`): what
+    /// the neighbour iteration needs to predict how far a change of the neighbours moves the dot.
+    pub point_fisher: Option<[[f64; 7]; 7]>,
+}
+
+impl Default for LastFit {
+    fn default() -> Self {
+        LastFit {
+            chi2: f64::NAN,
+            dof: 0,
+            moved: f64::INFINITY,
+            point_fisher: None,
+        }
+    }
 }
 
 impl Fitter {
@@ -73,6 +103,7 @@ impl Fitter {
             ws: Workspace::default(),
             intermediate: false,
             warm: false,
+            last: LastFit::default(),
         }
     }
 
@@ -203,6 +234,7 @@ impl Fitter {
         hint: Option<&Gaussian2D>,
         noise: &NoiseModel,
     ) -> DotFit {
+        self.last = LastFit::default();
         let ws = &mut self.ws;
         let centre = [
             ws.wx as f64 + 0.5 * (ws.w as f64 - 1.0),
@@ -255,6 +287,31 @@ impl Fitter {
                         ..again
                     };
                 }
+                self.last = LastFit {
+                    chi2: out.cost,
+                    dof: self.ws.n_used.saturating_sub(self.kind.n_free()),
+                    moved: match hint {
+                        Some(h) if out.status.is_ok() => {
+                            let (from, to) = (theta_from_gaussian(h), out.theta);
+                            let mut d = [0.0; 7];
+                            // the dot as its neighbours see it: without its background
+                            for (k, &p) in self.kind.free().iter().enumerate() {
+                                d[k] = if p == IB { 0.0 } else { to[p] - from[p] };
+                            }
+                            crate::solver::quad_form(&out.fisher, &d, self.kind.n_free())
+                                .max(0.0)
+                                .sqrt()
+                        }
+                        _ => f64::INFINITY,
+                    },
+                    point_fisher: (out.status.is_ok()
+                        && match self.cfg.sampling {
+                            FitSampling::Point => true,
+                            FitSampling::Auto => conditional_sigma(&out.theta) >= AUTO_SIGMA,
+                            FitSampling::Integrated => false,
+                        })
+                    .then_some(out.fisher),
+                };
                 self.lsg_record(&out, flags)
             }
         }

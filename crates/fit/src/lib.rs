@@ -60,14 +60,20 @@ mod dots;
 mod error;
 mod eval;
 mod fit;
+mod joint;
 mod lmcrate;
 mod noise;
 mod solver;
 mod start;
 pub mod study;
 
-pub use config::{AUTO_SIGMA, Estimator, FitConfig, FitSampling, Neighbours, Solver};
-pub use dots::{NeighbourTails, TAILS_MAX_SHIFT, fit_dots, refit_dots};
+pub use config::{
+    AUTO_SIGMA, Estimator, FitConfig, FitSampling, MAX_NEIGHBOUR_PASSES, Neighbours, Solver,
+};
+pub use dots::{
+    NeighbourTails, PassReport, TAILS_MAX_SHIFT, fit_dots, fit_dots_report, refit_dots,
+    refit_dots_report,
+};
 pub use error::FitError;
 pub use fit::{Fitter, WindowSamples, fit_window};
 pub use noise::{

@@ -173,6 +173,7 @@ pub(crate) fn solve_lm_crate(
         at_bound: bounds.at_bound(&theta),
         fisher,
         ssr: pass.ssr,
+        cost: pass.cost,
         bound: None,
     }
 }

@@ -181,7 +181,7 @@ pub(crate) fn position_bound(nm: &[[f64; 7]; 7], n: usize) -> Option<[f64; 2]> {
 }
 
 /// `xᵀ N x` over the leading n×n block.
-fn quad_form(nm: &[[f64; 7]; 7], x: &[f64; 7], n: usize) -> f64 {
+pub(crate) fn quad_form(nm: &[[f64; 7]; 7], x: &[f64; 7], n: usize) -> f64 {
     let mut s = 0.0;
     for i in 0..n {
         for j in 0..n {
@@ -202,6 +202,8 @@ pub(crate) struct Outcome {
     pub fisher: [[f64; 7]; 7],
     /// Σ keep r² at `theta`.
     pub ssr: f64,
+    /// Σ w r² at `theta` with the solve's weights (the χ² of the window under the noise model).
+    pub cost: f64,
     /// Position bound from `fisher` (filled by the caller).
     pub bound: Option<[f64; 2]>,
 }
@@ -266,6 +268,7 @@ pub(crate) fn solve_fast(
             if pass.finite {
                 out.fisher = normal_equations(kind, &out.theta, &pass).0;
                 out.ssr = pass.ssr;
+                out.cost = pass.cost;
             }
             break;
         }
@@ -302,17 +305,18 @@ fn lm_loop(
     let mut pass: Pass = evaluate(ws, &theta, sampling, kind, noise);
     let mut cost = pass.cost;
     let (mut nm, mut g) = normal_equations(kind, &theta, &pass);
-    let outcome = |theta: Theta, status, iterations, nm, ssr| Outcome {
+    let outcome = |theta: Theta, status, iterations, nm, (ssr, cost): (f64, f64)| Outcome {
         theta,
         status,
         iterations,
         at_bound: bounds.at_bound(&theta),
         fisher: nm,
         ssr,
+        cost,
         bound: None,
     };
     if !pass.finite {
-        return outcome(theta, FitStatus::NonFinite, 0, nm, pass.ssr);
+        return outcome(theta, FitStatus::NonFinite, 0, nm, (pass.ssr, pass.cost));
     }
     let tol2 = tolerance * tolerance;
     let mut lambda = LAMBDA_START;
@@ -321,7 +325,7 @@ fn lm_loop(
         let Some(step) = solve_damped(&nm, &g, n, lambda) else {
             lambda *= 10.0;
             if lambda > LAMBDA_MAX {
-                return outcome(theta, FitStatus::Singular, it, nm, pass.ssr);
+                return outcome(theta, FitStatus::Singular, it, nm, (pass.ssr, pass.cost));
             }
             continue;
         };
@@ -348,7 +352,7 @@ fn lm_loop(
             } else {
                 pass.ssr
             };
-            return outcome(trial, FitStatus::Converged, it, nm, ssr);
+            return outcome(trial, FitStatus::Converged, it, nm, (ssr, predicted));
         }
         let accepted = if !finite || !bounds.inside(&trial) {
             left = finite;
@@ -370,7 +374,7 @@ fn lm_loop(
                 (nm, g) = normal_equations(kind, &theta, &pass);
                 lambda = (lambda * 0.1).max(LAMBDA_MIN);
                 if m2 <= tol2 && !damped {
-                    return outcome(theta, FitStatus::Converged, it, nm, pass.ssr);
+                    return outcome(theta, FitStatus::Converged, it, nm, (pass.ssr, pass.cost));
                 }
                 true
             } else {
@@ -381,7 +385,7 @@ fn lm_loop(
             lambda *= 10.0;
             if lambda > LAMBDA_MAX {
                 if left {
-                    return outcome(theta, FitStatus::LeftWindow, it, nm, pass.ssr);
+                    return outcome(theta, FitStatus::LeftWindow, it, nm, (pass.ssr, pass.cost));
                 }
                 // no step lowers the cost: a (possibly constrained) minimum to rounding
                 let gn = solve_damped(&nm, &g, n, 0.0);
@@ -391,7 +395,7 @@ fn lm_loop(
                 } else {
                     FitStatus::Singular
                 };
-                return outcome(theta, status, it, nm, pass.ssr);
+                return outcome(theta, status, it, nm, (pass.ssr, pass.cost));
             }
         }
     }
@@ -400,7 +404,7 @@ fn lm_loop(
         FitStatus::IterationLimit,
         max_iterations,
         nm,
-        pass.ssr,
+        (pass.ssr, pass.cost),
     )
 }
 

@@ -4,6 +4,8 @@
 //! each one) and fills missing keys from its `Default`, which is the single place a default is
 //! written. The annotated template ([`crate::template`]) is generated from these defaults.
 
+use bostrack_core::DotFlags;
+use bostrack_displacement::DisplacementConfig;
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 
@@ -103,6 +105,30 @@ pub struct MatchConfig {
     /// A frame in which fewer than this fraction of the fitted reference dots are matched is
     /// an error (a wrong or empty image), not a result.
     pub min_matched_fraction: f64,
+    /// Names of flags that by default make a displacement invalid but are to leave it valid
+    /// here (only those of [`MatchConfig::KEEPABLE`]; the flags stay in the `flags` column).
+    pub keep_flagged: Vec<String>,
+}
+
+impl MatchConfig {
+    /// The flags `keep_flagged` may name: the fit-quality flags whose dots are invalid by
+    /// default (`bostrack_displacement::DisplacementConfig::DEFAULT_INVALID_IF`) but still carry
+    /// a displacement that a user may judge usable.
+    pub const KEEPABLE: [DotFlags; 2] = [DotFlags::UNCONVERGED, DotFlags::RESIDUAL];
+
+    /// The flags that make a displacement invalid: the default set without those named by
+    /// `keep_flagged`. `Err` with the first name that is not one of [`MatchConfig::KEEPABLE`].
+    pub fn invalid_if(&self) -> Result<DotFlags, String> {
+        let mut flags = DisplacementConfig::DEFAULT_INVALID_IF;
+        for name in &self.keep_flagged {
+            let flag = Self::KEEPABLE
+                .into_iter()
+                .find(|f| f.to_string() == *name)
+                .ok_or_else(|| name.clone())?;
+            flags.remove(flag);
+        }
+        Ok(flags)
+    }
 }
 
 impl Default for MatchConfig {
@@ -113,6 +139,7 @@ impl Default for MatchConfig {
             median_threshold: 2.0,
             max_displacement: None,
             min_matched_fraction: 0.1,
+            keep_flagged: Vec::new(),
         }
     }
 }
@@ -129,7 +156,8 @@ pub enum ReferencePosition {
 }
 
 /// Which amplification-ratio formula to use: the model crate's own (serde names `notes`,
-/// `published`; ../shared/papers/NOTES.md §2).
+/// `bounds`, `published`; ../shared/papers/NOTES.md §2). The pipeline's default is `bounds`
+/// ([`UncertaintyConfig::default`]).
 pub use bostrack_model::ArVariant;
 
 /// `[uncertainty]`: per-dot displacement uncertainty.
@@ -140,7 +168,8 @@ pub struct UncertaintyConfig {
     pub common_mode: bool,
     /// Reference position: single image or stack mean.
     pub reference_position: ReferencePosition,
-    /// Amplification-ratio variant.
+    /// Amplification-ratio variant; default `bounds` (the ratio of the two fits' Cramér-Rao
+    /// bounds, which needs `[fit] bound = true`), as in `bostrack-displacement`.
     pub ar_variant: ArVariant,
 }
 
@@ -149,7 +178,7 @@ impl Default for UncertaintyConfig {
         UncertaintyConfig {
             common_mode: true,
             reference_position: ReferencePosition::Image,
-            ar_variant: ArVariant::Notes,
+            ar_variant: DisplacementConfig::default().ar_variant,
         }
     }
 }

@@ -182,7 +182,8 @@ mod tests {
                         "median_epsilon",
                         "median_threshold",
                         "max_displacement",
-                        "min_matched_fraction"
+                        "min_matched_fraction",
+                        "keep_flagged"
                     ]
                 );
             }

@@ -35,13 +35,18 @@
 //!    with the median tracked displacement) and **validate** the displacements (optional
 //!    threshold `[match] max_displacement`, then the normalised median test of Westerweel &
 //!    Scarano 2005 over the 8 nearest vectors; outliers are flagged `OUTLIER`, never replaced);
-//! 5. **pair**: per reference dot `d = x_grad - x_ref`, the amplification ratio (NOTES.md §2;
-//!    the published variant only with `ar_variant = "published"`), `u_grad = AR · u_ref`,
-//!    `u_d = sqrt(u_refpos² + u_grad²)` (`bostrack_displacement::pair_dot`).
+//! 5. **pair**: per reference dot `d = x_grad - x_ref`, the amplification ratio (by default
+//!    the ratio of the two fits' bounds; the closed form of NOTES.md §2 with `ar_variant =
+//!    "notes"`, the published variant only with `"published"`), `u_grad = AR · u_ref`,
+//!    `u_d = sqrt(u_refpos² + u_grad²)`, and `valid` unless a flag of [`Plan::invalid_if`]
+//!    is set (`bostrack_displacement::pair_dot`).
 //!
-//! **AR shapes.** With the default least-squares fit of the pixel-integrated model the fitted
-//! sigmas are those of the dot *before* the pixel box; the light the pixels record is that dot
-//! blurred by the box, so AR is evaluated on `bostrack_displacement::pixel_blurred` shapes
+//! [`Plan::invalid_if`]: crate::Plan::invalid_if
+//!
+//! **AR shapes** (for the `notes` and `published` variants; `bounds` takes no shapes). With the
+//! default least-squares fit of the pixel-integrated model the fitted sigmas are those of the dot
+//! *before* the pixel box; the light the pixels record is that dot blurred by the box, so AR is
+//! evaluated on `bostrack_displacement::pixel_blurred` shapes
 //! ([`ArShapes::PixelBlurred`](bostrack_displacement::ArShapes)): the plain formula on
 //! pixel-integrated fits is off by 3 % at σ = 1.5 px and 7.5 % at σ = 1 px. Point-sampled fits
 //! and the moment estimators already describe the recorded light: AR on the fitted shapes.
@@ -185,7 +190,7 @@ pub struct FrameSummary {
     pub quantities: String,
     /// Shapes the amplification ratio was evaluated on: "pixel-blurred" or "fitted".
     pub ar_shapes: String,
-    /// Amplification-ratio variant: "notes" or "published".
+    /// Amplification-ratio variant: "bounds", "notes" or "published".
     pub ar_variant: String,
     pub counts: FrameCounts,
     pub medians: FrameMedians,

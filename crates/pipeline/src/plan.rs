@@ -1,13 +1,15 @@
 //! The validated plan: the second configuration level, with every path resolved and checked.
 
 use crate::config::{
-    DetectSection, Figure, FigureFormat, FitSection, MatchConfig, PipelineConfig, ReferenceFrom,
-    ReferencePosition, UncertaintyConfig,
+    ArVariant, DetectSection, Figure, FigureFormat, FitSection, MatchConfig, PipelineConfig,
+    Quantities, ReferenceFrom, ReferencePosition, UncertaintyConfig,
 };
 use crate::error::ConfigError;
 use crate::files::list_matching;
 use crate::jobs::resolve_jobs;
 use crate::load::load_config;
+use crate::suggest::did_you_mean;
+use bostrack_core::DotFlags;
 use std::path::{Path, PathBuf};
 
 /// Where the reference image of a run comes from.
@@ -48,6 +50,9 @@ pub struct Plan {
     pub detect: DetectSection,
     pub fit: FitSection,
     pub matching: MatchConfig,
+    /// The flags that make a displacement invalid: the default set without `[match]
+    /// keep_flagged` ([`MatchConfig::invalid_if`]).
+    pub invalid_if: DotFlags,
     pub uncertainty: UncertaintyConfig,
     pub output: OutputPlan,
     /// Worker threads (`run.jobs`, 0 resolved to the available CPUs).
@@ -66,6 +71,7 @@ impl Plan {
     pub fn from_config(cfg: PipelineConfig, config_file: &Path) -> Result<Plan, ConfigError> {
         let v = Validator { file: config_file };
         v.check_values(&cfg)?;
+        let invalid_if = v.invalid_if(&cfg.matching)?;
 
         let base = config_file.parent().unwrap_or(Path::new(""));
         let input_dir = base.join(&cfg.input.dir);
@@ -135,6 +141,7 @@ impl Plan {
             detect: cfg.detect.clone(),
             fit: cfg.fit.clone(),
             matching: cfg.matching.clone(),
+            invalid_if,
             uncertainty: cfg.uncertainty.clone(),
             output,
             jobs: resolve_jobs(cfg.run.jobs),
@@ -177,11 +184,15 @@ impl Validator<'_> {
         cfg.fit
             .validate()
             .map_err(|e| self.invalid("fit", e.to_string()))?;
-        if cfg.uncertainty.ar_variant == bostrack_displacement::ArVariant::Bounds && !cfg.fit.bound
+        if cfg.uncertainty.ar_variant == ArVariant::Bounds
+            && !cfg.fit.bound
+            && cfg.output.quantities >= Quantities::Amplification
         {
             return Err(self.invalid(
                 "uncertainty.ar_variant",
-                "\"bounds\" is the ratio of the fits' Cramer-Rao bounds, but [fit] bound = false",
+                "\"bounds\" (the default) takes the amplification ratio from the fits' \
+                 Cramer-Rao bounds, but [fit] bound = false: set [fit] bound = true, or choose \
+                 [uncertainty] ar_variant = \"notes\" (the closed form from the fitted shapes)",
             ));
         }
         let m = &cfg.matching;
@@ -250,6 +261,35 @@ impl Validator<'_> {
             ));
         }
         Ok(())
+    }
+
+    /// `[match] keep_flagged`: only the names of [`MatchConfig::KEEPABLE`], each once.
+    fn invalid_if(&self, m: &MatchConfig) -> Result<DotFlags, ConfigError> {
+        const KEY: &str = "match.keep_flagged";
+        let valid: Vec<String> = MatchConfig::KEEPABLE.map(|f| f.to_string()).into();
+        let candidates: Vec<&str> = valid.iter().map(String::as_str).collect();
+        for (k, name) in m.keep_flagged.iter().enumerate() {
+            if m.keep_flagged[..k].contains(name) {
+                return Err(self.invalid(KEY, format!("\"{name}\" is listed twice")));
+            }
+        }
+        m.invalid_if().map_err(|name| {
+            let what = if DotFlags::parse(&name).is_ok_and(|f| !f.is_empty()) {
+                "cannot be kept valid"
+            } else {
+                "is not a flag that can be kept valid"
+            };
+            let hint = did_you_mean(&name, &candidates)
+                .map(|s| format!("did you mean \"{s}\"? "))
+                .unwrap_or_default();
+            self.invalid(
+                KEY,
+                format!(
+                    "\"{name}\" {what} ({hint}valid names: {})",
+                    valid.join(", ")
+                ),
+            )
+        })
     }
 
     fn require_file(&self, key: &str, p: &Path) -> Result<(), ConfigError> {
@@ -458,6 +498,84 @@ mod tests {
             matches!(&e, ConfigError::Invalid { key, .. } if key == "input.gradient_glob"),
             "{e}"
         );
+    }
+
+    /// The message of the `ConfigError::Invalid` of `key` that `extra` after [`BASE`] gives.
+    fn invalid_message(root: &Path, extra: &str, key: &str) -> String {
+        match plan(root, &format!("{BASE}{extra}")) {
+            Err(ConfigError::Invalid {
+                key: k, message, ..
+            }) if k == key => message,
+            other => panic!("{extra}: not an invalid {key}: {other:?}"),
+        }
+    }
+
+    #[test]
+    fn default_bounds_ar_needs_the_fit_bound() {
+        let root = campaign();
+        // the default ar_variant ("bounds") with the bound switched off: both keys and the
+        // ways out are named
+        let key = "uncertainty.ar_variant";
+        let msg = invalid_message(root.path(), "[fit]\nbound = false\n", key);
+        for part in [
+            "\"bounds\" (the default)",
+            "[fit] bound = false",
+            "set [fit] bound = true",
+            "ar_variant = \"notes\"",
+        ] {
+            assert!(msg.contains(part), "{part}: {msg}");
+        }
+        let amplification = "[fit]\nbound = false\n[output]\nquantities = \"amplification\"\n";
+        invalid_message(root.path(), amplification, key);
+        // either way out works; without an amplification ratio the bound is not needed
+        for extra in [
+            "[fit]\nbound = false\n[uncertainty]\nar_variant = \"notes\"\n",
+            "[fit]\nbound = false\n[uncertainty]\nar_variant = \"published\"\n",
+            "[fit]\nbound = true\n",
+            "[fit]\nbound = false\n[output]\nquantities = \"displacement\"\n",
+        ] {
+            if let Err(e) = plan(root.path(), &format!("{BASE}{extra}")) {
+                panic!("{extra}: {e}");
+            }
+        }
+    }
+
+    #[test]
+    fn keep_flagged_takes_unconverged_and_residual_out_of_invalid_if() {
+        let root = campaign();
+        let default = bostrack_displacement::DisplacementConfig::DEFAULT_INVALID_IF;
+        assert!(default.contains(DotFlags::UNCONVERGED | DotFlags::RESIDUAL));
+        let invalid_if = |names: &str| {
+            let extra = format!("[match]\nkeep_flagged = [{names}]\n");
+            plan(root.path(), &format!("{BASE}{extra}"))
+                .unwrap()
+                .invalid_if
+        };
+        assert_eq!(plan(root.path(), BASE).unwrap().invalid_if, default);
+        assert_eq!(invalid_if(""), default);
+        let p = invalid_if("\"residual\"");
+        assert!(p.contains(DotFlags::UNCONVERGED) && !p.intersects(DotFlags::RESIDUAL));
+        let mut want = default;
+        want.remove(DotFlags::UNCONVERGED | DotFlags::RESIDUAL);
+        assert_eq!(invalid_if("\"residual\", \"unconverged\""), want);
+        assert!(want.contains(DotFlags::OUTLIER | DotFlags::UNMATCHED));
+
+        for (names, says) in [
+            ("\"outlier\"", "\"outlier\" cannot be kept valid"),
+            ("\"residuals\"", "did you mean \"residual\"?"),
+            (
+                "\"bogus\"",
+                "\"bogus\" is not a flag that can be kept valid",
+            ),
+            ("\"residual\", \"residual\"", "\"residual\" is listed twice"),
+        ] {
+            let extra = format!("[match]\nkeep_flagged = [{names}]\n");
+            let msg = invalid_message(root.path(), &extra, "match.keep_flagged");
+            assert!(msg.contains(says), "{says}: {msg}");
+            if !says.contains("twice") {
+                assert!(msg.contains("valid names: unconverged, residual"), "{msg}");
+            }
+        }
     }
 
     #[test]

@@ -183,8 +183,23 @@ pub(crate) const SECTIONS: &[SectionDoc] = &[
             ),
             key(
                 "neighbour_passes",
-                "With neighbours = \"subtract\": how many times every dot is refitted after its\n\
-                 neighbours' latest fits were subtracted.",
+                "With neighbours = \"subtract\": the largest number of neighbour passes (1 to 100).\n\
+                 Each pass refits, with its neighbours' latest fits subtracted, every dot not yet\n\
+                 converged with its neighbours; the passes stop as soon as every dot has converged.\n\
+                 A dot still not converged after the last pass is flagged \"unconverged\".",
+            ),
+            key(
+                "neighbour_tolerance",
+                "A dot has converged with its neighbours when their latest changes can move its\n\
+                 position by less than this, in units of its position bound (a bound on that move\n\
+                 from the change of their models over its window); otherwise it is refitted in\n\
+                 the next pass.",
+            ),
+            key(
+                "residual_false_alarm",
+                "False-alarm rate of the per-dot chi-square test of the window's residual against\n\
+                 the noise model: a dot above the test's threshold is flagged \"residual\" (an\n\
+                 unmodelled neighbour, a defect, a speck: its bound does not describe it). 0: no test.",
             ),
             key(
                 "bound",
@@ -218,6 +233,12 @@ pub(crate) const SECTIONS: &[SectionDoc] = &[
                 "A gradient image in which fewer than this fraction of the fitted reference dots\n\
                  are matched is an error (a wrong or empty image), not a result.",
             ),
+            key(
+                "keep_flagged",
+                "Flags that leave a displacement valid although they make it invalid by default:\n\
+                 \"unconverged\" and/or \"residual\" (the flags stay in the flags column; every\n\
+                 flag and whether it invalidates: docs/CONVENTIONS.md).",
+            ),
         ],
     },
     SectionDoc {
@@ -237,9 +258,10 @@ pub(crate) const SECTIONS: &[SectionDoc] = &[
             ),
             key(
                 "ar_variant",
-                "Amplification ratio: \"notes\" (NOTES.md section 2), \"bounds\" (the ratio of the two\n\
-                 fits' own Cramer-Rao bounds: right under shot noise too, needs [fit] bound = true)\n\
-                 or \"published\" (the published reference code, only to reproduce published numbers).",
+                "Amplification ratio: \"bounds\" (the ratio of the two fits' own Cramer-Rao bounds:\n\
+                 right under shot noise too; needs [fit] bound = true), \"notes\" (the closed form\n\
+                 of NOTES.md section 2 from the fitted shapes: right under read noise alone) or\n\
+                 \"published\" (the published reference code, only to reproduce published numbers).",
             ),
         ],
     },

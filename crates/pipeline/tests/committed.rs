@@ -1,8 +1,11 @@
-//! The configuration files committed at the top of the repository agree with the code: the
-//! main `pipeline.toml` is exactly the generated template (so its defaults are the code's), and
-//! both campaigns resolve to the files they describe.
+//! The files committed at the top of the repository agree with the code: the main
+//! `pipeline.toml` is exactly the generated template (so its defaults are the code's), both
+//! campaigns resolve to the files they describe, and the table of statuses and flags in
+//! `docs/CONVENTIONS.md` is the code's.
 
-use bostrack_pipeline::{PipelineConfig, Plan, ReferenceImage, load_config, template};
+use bostrack_core::{DotFlags, FitStatus};
+use bostrack_displacement::DisplacementConfig;
+use bostrack_pipeline::{MatchConfig, PipelineConfig, Plan, ReferenceImage, load_config, template};
 use std::path::{Path, PathBuf};
 
 fn repo_root() -> PathBuf {
@@ -72,4 +75,71 @@ fn the_sample_campaign_resolves() {
     assert_eq!(name(&plan.gradients[0]), "gradient.tif");
     assert!(plan.mask.as_ref().is_some_and(|m| m.is_file()));
     assert!(matches!(&plan.reference, ReferenceImage::File(p) if p.is_file()));
+}
+
+/// The rows of the status and flag table of docs/CONVENTIONS.md: `(column, name, meaning,
+/// invalid by default)`, names without their backticks.
+fn flag_table() -> Vec<[String; 4]> {
+    let text = std::fs::read_to_string(repo_root().join("docs/CONVENTIONS.md")).unwrap();
+    let mut lines = text
+        .lines()
+        .skip_while(|l| !l.starts_with("| column | name | meaning |"))
+        .skip(2); // the header and its rule
+    let mut rows = Vec::new();
+    for line in lines.by_ref().take_while(|l| l.starts_with('|')) {
+        let cells: Vec<&str> = line.split('|').map(str::trim).collect();
+        assert_eq!(cells.len(), 6, "a row of four cells: {line}");
+        let name = cells[2].trim_matches('`');
+        assert!(!cells[3].is_empty(), "no meaning: {line}");
+        rows.push([cells[1], name, cells[3], cells[4]].map(str::to_owned));
+    }
+    assert!(!rows.is_empty(), "no table in docs/CONVENTIONS.md");
+    rows
+}
+
+/// Every `FitStatus` and every `DotFlags` flag has one row, in the code's order, nothing else
+/// does, and the last column says what the code does: a status that is not usable makes the
+/// displacement invalid (through `fit_failed`), a flag does when it is in
+/// `DisplacementConfig::DEFAULT_INVALID_IF`, "unless kept" when `[match] keep_flagged` can keep
+/// it.
+#[test]
+fn conventions_table_lists_every_status_and_flag() {
+    let rows = flag_table();
+    let names = |column: &str| -> Vec<&str> {
+        rows.iter()
+            .filter(|r| r[0] == column)
+            .map(|r| r[1].as_str())
+            .collect()
+    };
+    let statuses: Vec<&str> = FitStatus::ALL.iter().map(FitStatus::as_str).collect();
+    assert_eq!(names("status"), statuses);
+    let flags: Vec<&str> = DotFlags::from_bits(u32::MAX).names().collect();
+    assert_eq!(names("flags"), flags);
+    assert_eq!(
+        rows.len(),
+        statuses.len() + flags.len(),
+        "rows of another column"
+    );
+
+    for s in FitStatus::ALL {
+        let row = rows.iter().find(|r| r[1] == s.as_str()).unwrap();
+        let want = if s.is_ok() {
+            "no"
+        } else {
+            "yes (`fit_failed`)"
+        };
+        assert_eq!(row[3], want, "status {s}");
+    }
+    for f in flags {
+        let row = rows.iter().find(|r| r[0] == "flags" && r[1] == f).unwrap();
+        let flag = DotFlags::parse(f).unwrap();
+        let want = if !DisplacementConfig::DEFAULT_INVALID_IF.contains(flag) {
+            "no"
+        } else if MatchConfig::KEEPABLE.contains(&flag) {
+            "yes, unless kept"
+        } else {
+            "yes"
+        };
+        assert_eq!(row[3], want, "flag {f}");
+    }
 }

@@ -8,7 +8,9 @@
 //! the exact per-dot Cramér-Rao bound); [`Scene::gradient`] moves and blurs the same dots by a
 //! [`FlowConfig`] (uniform, affine, vortex or Gaussian-bump displacement; blur from the
 //! displacement's Jacobian as in Rajendran et al. 2020), so a reference/gradient pair has a
-//! known answer; [`stack`] gives K no-flow images that differ only by noise.
+//! known answer; [`Scene::frame`] is gradient frame `n` of a campaign (the same dots, its own
+//! noise, as `bostrack synth` writes it); [`stack`] gives K no-flow images that differ only by
+//! noise.
 //!
 //! Everything is deterministic for a given seed (derived seeds per site and per image row, so
 //! the result does not depend on the number of threads). The crate touches no files: the truth

@@ -36,6 +36,18 @@ pub fn image_seed(master: u64, stream: u64) -> u64 {
     derive(master, &[DOMAIN_IMAGE, stream])
 }
 
+/// Noise seed of gradient frame `n` of a campaign ([`crate::Scene::frame`], `bostrack synth`):
+/// SplitMix64 of the master seed and the frame number, so frames are independent of each other
+/// and of the reference and stack noise streams. (Kept bit for bit from the first `bostrack
+/// synth`, so campaigns written before stay reproducible.)
+pub(crate) fn frame_seed(master: u64, n: usize) -> u64 {
+    let mut z = master
+        ^ 0x4752_4144_4945_4e54u64.wrapping_add((n as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15));
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    z ^ (z >> 31)
+}
+
 /// RNG of the layout draws of lattice site `(i, j)`.
 pub(crate) fn site_rng(master: u64, i: i32, j: i32) -> StdRng {
     StdRng::seed_from_u64(derive(

@@ -3,7 +3,9 @@
 use crate::config::{FlowConfig, LatticeKind, SceneConfig};
 use crate::field::apply_flow;
 use crate::render::{Illumination, add_noise, render_mean, scene_mask};
-use crate::rng::{STREAM_GRADIENT, STREAM_REFERENCE, STREAM_STACK, image_seed, site_rng};
+use crate::rng::{
+    STREAM_GRADIENT, STREAM_REFERENCE, STREAM_STACK, frame_seed, image_seed, site_rng,
+};
 use crate::truth::compute_bounds;
 use crate::{SynthError, TruthDot};
 use bostrack_core::{DotFlags, Gaussian2D, GridIndex, Image, Lattice, Mask, NoiseModel};
@@ -186,6 +188,21 @@ impl Scene {
     /// `window_sigmas·σ`, of the image): a displacement larger than that margin would leave
     /// out dots that it carries into view.
     pub fn gradient(cfg: &SceneConfig, flow: &FlowConfig) -> Result<Scene, SynthError> {
+        Scene::gradient_with_noise(cfg, flow, image_seed(cfg.seed, STREAM_GRADIENT))
+    }
+
+    /// Gradient frame `n` (numbered from 1) of a campaign, as `bostrack synth` writes it: the
+    /// dots of [`Scene::gradient`] (the same flow in every frame) with the frame's own noise,
+    /// independent of the other frames and of the reference and stack images.
+    pub fn frame(cfg: &SceneConfig, flow: &FlowConfig, n: usize) -> Result<Scene, SynthError> {
+        Scene::gradient_with_noise(cfg, flow, frame_seed(cfg.seed, n))
+    }
+
+    fn gradient_with_noise(
+        cfg: &SceneConfig,
+        flow: &FlowConfig,
+        noise_seed: u64,
+    ) -> Result<Scene, SynthError> {
         flow.validate()?;
         let mut truth = layout(cfg)?;
         for t in &mut truth {
@@ -195,7 +212,7 @@ impl Scene {
                 t.flags.insert(DotFlags::FAINT);
             }
         }
-        Scene::build(cfg, truth, image_seed(cfg.seed, STREAM_GRADIENT))
+        Scene::build(cfg, truth, noise_seed)
     }
 
     fn build(cfg: &SceneConfig, mut truth: Vec<TruthDot>, seed: u64) -> Result<Scene, SynthError> {

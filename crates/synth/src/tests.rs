@@ -343,6 +343,39 @@ fn stack_images_differ_only_by_noise() {
     assert_ne!(imgs[0].data(), Scene::reference(&cfg).unwrap().image.data());
 }
 
+/// Campaign frames: the dots and noise-free image of the gradient scene, independent noise per
+/// frame, and a frame seed kept bit for bit (committed campaigns such as testdata/demo were
+/// written with it).
+#[test]
+fn frames_differ_only_by_noise() {
+    let mut cfg = small(5);
+    cfg.bits = 64;
+    let flow = FlowConfig {
+        displacement: DisplacementField::Uniform { dx: 0.3, dy: -0.2 },
+        blur: 0.0,
+        conserve_intensity: true,
+    };
+    let g = Scene::gradient(&cfg, &flow).unwrap();
+    let frames: Vec<Scene> = (1..=3)
+        .map(|n| Scene::frame(&cfg, &flow, n).unwrap())
+        .collect();
+    for (a, f) in frames.iter().enumerate() {
+        assert!(same_truth(&f.truth, &g.truth));
+        assert_eq!(f.mean.data(), g.mean.data());
+        assert_ne!(f.image.data(), g.image.data());
+        for b in &frames[a + 1..] {
+            assert_ne!(f.image.data(), b.image.data());
+        }
+    }
+    // the same frame twice is the same image
+    assert_eq!(
+        Scene::frame(&cfg, &flow, 2).unwrap().image.data(),
+        frames[1].image.data()
+    );
+    assert_eq!(crate::rng::frame_seed(0, 1), 0x7d4b_c0a5_5e62_c91a);
+    assert_ne!(crate::rng::frame_seed(0, 1), crate::rng::frame_seed(1, 1));
+}
+
 /// Gradient scene: every dot at ref + d(ref) with the blurred shape of the flow model.
 #[test]
 fn gradient_scene_has_known_answer() {

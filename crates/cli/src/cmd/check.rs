@@ -12,8 +12,9 @@ use std::path::PathBuf;
     about = "Validate a pipeline.toml and print the resolved plan as JSON",
     long_about = "Read a campaign configuration, check it and print the plan it resolves to as one \
 JSON object: the reference image (a file or \"stack-mean\"), the no-flow stack and gradient files \
-in the order they will be processed (natural order: frame2 before frame10), the mask, the output \
-folder and the number of worker threads.\n\n\
+in the order they will be processed (natural order: frame2 before frame10), the mask, the flags \
+that make a displacement invalid (`[match] keep_flagged` taken out), the output folder and the \
+number of worker threads.\n\n\
 Relative paths are resolved against the folder of the configuration file. Unknown keys, \
 values out of range, missing files and patterns that match nothing are errors (exit 1) that \
 name the file, and for unknown keys the line and the closest valid key."
@@ -37,6 +38,7 @@ pub(crate) fn run(args: CheckArgs) -> anyhow::Result<Outcome> {
         "stack": plan.stack,
         "gradients": plan.gradients,
         "mask": plan.mask,
+        "invalid_if": plan.invalid_if.to_string(),
         "output": {
             "dir": plan.output.dir,
             "figures": figures,

@@ -11,17 +11,21 @@ use clap::Args;
 use std::io::Write as _;
 use std::path::PathBuf;
 
-const LOCATE_LONG_ABOUT: &str = "\
+/// The long help of `locate`: the CSV columns, with the status and flag names taken from the
+/// code (`FitStatus::ALL`, every `DotFlags` name), so none is left out.
+fn locate_long_about() -> String {
+    let statuses: Vec<&str> = FitStatus::ALL.iter().map(FitStatus::as_str).collect();
+    let flags: Vec<&str> = DotFlags::from_bits(u32::MAX).names().collect();
+    format!(
+        "\
 Detect every dot of a dot-target image on its lattice (bostrack-detect), fit each one
 (bostrack-fit) and write one CSV row per lattice site:
 
   i,j                  grid index (i along the lattice vector closest to +x, j closest to +y)
   x,y                  fitted centre, px (pixel centres at integers, origin at the centre of the
                        top-left pixel, y down); NaN when the dot was not fitted
-  status               why the fit stopped: converged, iteration_limit, singular, left_window,
-                       too_few_pixels, non_finite, not_fitted
-  flags                per-dot problems, a|b|c: border, masked, faint, missing, defect, merged,
-                       saturated, nan_pixels, fit_failed, at_bound
+{}
+{}
   sigma_x,sigma_y,rho  fitted shape, px (dot diameter d = 4 sigma)
   amplitude            peak height above the background, counts
   background           background level, counts
@@ -30,17 +34,49 @@ Detect every dot of a dot-target image on its lattice (bostrack-detect), fit eac
   iterations           Levenberg-Marquardt iterations
   x_pred,y_pred        position of the site predicted by the lattice map, px
 
-The noise model (read + shot noise) that weights the fits and sets the bounds is estimated from
-the image itself unless --read-noise is given. Per-dot problems are data (status and flags),
-never errors: the command fails (exit 1) only when the image cannot be read or no lattice is
-found. Parameters an estimator does not estimate
-are NaN (the three-point Gaussian does not estimate rho).";
+The meaning of every status and flag is in the table of docs/CONVENTIONS.md. The noise model
+(read + shot noise) that weights the fits and sets the bounds is estimated from the image itself
+unless --read-noise is given. Per-dot problems are data (status and flags), never errors: the
+command fails (exit 1) only when the image cannot be read or no lattice is found. Parameters an
+estimator does not estimate are NaN (the three-point Gaussian does not estimate rho).",
+        column(
+            "status",
+            &format!("why the fit stopped: {}", statuses.join(", "))
+        ),
+        column(
+            "flags",
+            &format!("per-dot problems, a|b|c: {}", flags.join(", "))
+        ),
+    )
+}
+
+/// One entry of the column list of [`locate_long_about`]: the name in a 21-character field
+/// after two spaces, the text wrapped at 96 characters and continued under itself.
+fn column(name: &str, text: &str) -> String {
+    const INDENT: usize = 23;
+    const WIDTH: usize = 96;
+    let mut out = format!("  {name:<21}");
+    let mut line_len = INDENT;
+    for (k, word) in text.split(' ').enumerate() {
+        if k > 0 && line_len + 1 + word.len() > WIDTH {
+            out.push('\n');
+            out.push_str(&" ".repeat(INDENT));
+            line_len = INDENT;
+        } else if k > 0 {
+            out.push(' ');
+            line_len += 1;
+        }
+        out.push_str(word);
+        line_len += word.len();
+    }
+    out
+}
 
 /// Detect and fit every dot of an image.
 #[derive(Debug, Args)]
 #[command(
     about = "Detect and fit every dot of an image; one CSV row per lattice site",
-    long_about = LOCATE_LONG_ABOUT
+    long_about = locate_long_about()
 )]
 pub(crate) struct LocateArgs {
     /// Image of the dot target (TIFF or PNG).

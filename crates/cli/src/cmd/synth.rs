@@ -5,9 +5,7 @@ use crate::Outcome;
 use crate::jobs::JobsArg;
 use anyhow::{Context as _, bail};
 use bostrack_core::Image;
-use bostrack_synth::{
-    DisplacementField, FlowConfig, Scene, SceneConfig, add_noise, stack, write_truth_csv,
-};
+use bostrack_synth::{DisplacementField, FlowConfig, Scene, SceneConfig, stack, write_truth_csv};
 use clap::Args;
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
@@ -213,16 +211,6 @@ fn resolve(args: &SynthArgs) -> anyhow::Result<(SceneConfig, FlowConfig)> {
     Ok((scene, flow))
 }
 
-/// Seed of the noise of gradient frame `n`: SplitMix64 of the scene seed and the frame number,
-/// so frames are independent of each other and of the reference and stack noise streams.
-fn frame_seed(seed: u64, n: usize) -> u64 {
-    let mut z = seed
-        ^ 0x4752_4144_4945_4e54u64.wrapping_add((n as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15));
-    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-    z ^ (z >> 31)
-}
-
 /// One image or table to write.
 enum Product {
     Reference(Scene),
@@ -263,9 +251,7 @@ pub(crate) fn run(args: SynthArgs) -> anyhow::Result<Outcome> {
                     1 => Some(Product::Stack(stack(&scene_cfg, args.stack_size)?)),
                     _ => {
                         let n = t - 1;
-                        let mut s = Scene::gradient(&scene_cfg, &flow)?;
-                        s.image = add_noise(&scene_cfg, &s.mean, frame_seed(scene_cfg.seed, n))?;
-                        Some(Product::Frame(n, s))
+                        Some(Product::Frame(n, Scene::frame(&scene_cfg, &flow, n)?))
                     }
                 })
             })
@@ -385,16 +371,5 @@ mod tests {
                 .contains("unknown field `swirl`")
         );
         assert!(parse_field("zero:1").is_err());
-    }
-
-    #[test]
-    fn frame_seeds_differ() {
-        let s: Vec<u64> = (1..=4).map(|n| frame_seed(0, n)).collect();
-        for a in 0..s.len() {
-            for b in 0..a {
-                assert_ne!(s[a], s[b]);
-            }
-        }
-        assert_ne!(frame_seed(0, 1), frame_seed(1, 1));
     }
 }

@@ -139,7 +139,15 @@ mod tests {
             status: FitStatus::Converged,
             flags: DotFlags::NONE,
         };
-        let (r, g) = (fit(10.0, 1000.0), fit(10.25, 500.0));
+        // half as bright: twice the bound, AR = 2 by the default ratio of the bounds
+        let (r, g) = (
+            fit(10.0, 1000.0),
+            DotFit {
+                crlb_x: 0.02,
+                crlb_y: 0.04,
+                ..fit(10.25, 500.0)
+            },
+        );
         let stack = ReferenceStats {
             images: 10,
             mean: Some([10.0, 20.0]),

@@ -279,7 +279,7 @@ pub fn process_image(
         ar_variant: plan.uncertainty.ar_variant,
         ar_shapes: ctx.ar_shapes,
         reference_position: ctx.reference_position(plan),
-        ..DisplacementConfig::default()
+        invalid_if: plan.invalid_if,
     };
     let dots: Vec<PairDot> = pair_dots(
         (0..n).map(|i| PairInput {
