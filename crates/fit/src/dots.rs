@@ -242,7 +242,7 @@ struct Item {
     /// How far the dot moved in its last refit (standard deviations; 0: not refitted).
     moved: f64,
     /// The Fisher matrix of the last fit in point-model coordinates (see `LastFit`).
-    fisher: Option<[[f64; 7]; 7]>,
+    fisher: Option<Box<[[f64; 7]; 7]>>,
     /// The neighbours' models summed over the window when the dot was last fitted (empty: not
     /// known), to predict how far their later changes move it.
     seen: Vec<f64>,
@@ -256,7 +256,11 @@ impl Item {
             chi2: if lsg { f.last.chi2 } else { f64::NAN },
             dof: if lsg { f.last.dof } else { 0 },
             moved: if lsg { f.last.moved } else { f64::INFINITY },
-            fisher: if lsg { f.last.point_fisher } else { None },
+            fisher: if lsg {
+                f.last.point_fisher.map(Box::new)
+            } else {
+                None
+            },
             seen: Vec::new(),
         }
     }
@@ -510,14 +514,14 @@ impl<'a> Iteration<'a> {
                                 return;
                             }
                             let wj = self.seeds[j].window.clip(w, h);
-                            if let Some(d) = wj.and_then(|wj| JointDot::new(&fits[j], wj)) {
+                            if let Some(d) = wj.and_then(|wj| JointDot::new(&fits[j], wj, kind)) {
                                 nbs.push(d);
                             }
                         });
                         if nbs.is_empty() {
                             return None;
                         }
-                        let dot = JointDot::new(f, win)?;
+                        let dot = JointDot::new(f, win, kind)?;
                         crate::joint::joint_bound(kind, &dot, nbs, self.noise, &keep)
                     },
                 )
@@ -537,6 +541,48 @@ impl<'a> Iteration<'a> {
     /// that falls into this dot's window: an estimate of how far the dot would move if refitted
     /// now (Cauchy-Schwarz on the linearised fit), in its standard deviations.
     fn neighbour_pull(&self, items: &[Item], hood: &Neighbourhood) -> Vec<f64> {
+        let movers: Vec<usize> = (0..items.len())
+            .filter(|&j| items[j].moved != 0.0 && hood.models[j].is_some())
+            .collect();
+        if movers.len() * 8 < items.len() {
+            // few dots moved: from each of them to the windows it reaches (in ascending order
+            // of the movers, so the sums do not depend on the thread count)
+            let half = self
+                .seeds
+                .iter()
+                .map(|s| s.window.width.max(s.window.height))
+                .max()
+                .unwrap_or(0)
+                / 2
+                + 1;
+            let mut pull = vec![0.0; items.len()];
+            let mut near = Vec::new();
+            for &j in &movers {
+                let Some(m) = &hood.models[j] else { continue };
+                hood.index
+                    .near_unsorted(Window::centred(m.x0.round(), m.y0.round(), half), &mut near);
+                for &i in &near {
+                    let s = &self.seeds[i];
+                    if i == j
+                        || s.flags.contains(DotFlags::MISSING)
+                        || !m.reaches(s.window)
+                        || same_seed(s, &self.seeds[j])
+                    {
+                        continue;
+                    }
+                    let share = m.share_in(s.window);
+                    let moved = items[j].moved;
+                    pull[i] += if moved.is_finite() {
+                        moved * share.sqrt()
+                    } else if share > 0.0 {
+                        f64::INFINITY
+                    } else {
+                        0.0
+                    };
+                }
+            }
+            return pull;
+        }
         self.seeds
             .par_iter()
             .enumerate()
@@ -546,7 +592,7 @@ impl<'a> Iteration<'a> {
                 }
                 let win = s.window;
                 let mut pull = 0.0;
-                hood.index.near(win, near);
+                hood.index.near_unsorted(win, near);
                 if near.iter().all(|&j| items[j].moved == 0.0 || j == i) {
                     return 0.0;
                 }
@@ -1301,6 +1347,12 @@ impl NeighbourIndex {
     /// reach of the window (ascending, so the subtraction order and hence the result are
     /// deterministic).
     fn near(&self, w: Window, out: &mut Vec<usize>) {
+        self.near_unsorted(w, out);
+        out.sort_unstable();
+    }
+
+    /// As [`NeighbourIndex::near`], in bucket order (deterministic, not ascending).
+    fn near_unsorted(&self, w: Window, out: &mut Vec<usize>) {
         out.clear();
         if self.nx == 0 {
             return;
@@ -1329,6 +1381,5 @@ impl NeighbourIndex {
                 out.extend(items.iter().map(|&i| i as usize));
             }
         }
-        out.sort_unstable();
     }
 }

@@ -20,9 +20,13 @@ use crate::eval::{IB, Kind, Shape, Theta, pixel_blur, theta_from_gaussian};
 use bostrack_core::{DotFit, Gaussian2D, Mask, NoiseModel, Window};
 use nalgebra::DMatrix;
 
-/// Neighbours with a smaller share of their squared profile inside a window are left out (their
-/// effect on the bound is below ~1e-3 relative there).
-pub(crate) const MIN_SHARE: f64 = 3e-3;
+/// Neighbours with a smaller share of their squared profile inside a window are taken as known
+/// (left out of the joint model; the bound of the dot alone applies where none is left). On the
+/// real sample this under-states the joint bound of 1 % of the dots by up to ~2.5 % (99th
+/// percentile of joint / dot-alone 1.02 against 1.045 with 0.003) and saves ~100 ms of a
+/// reference's 1-thread fit; on a lattice of spacing 7 px at σ 1.6 px the mean ratio is 1.028 with
+/// either.
+pub(crate) const MIN_SHARE: f64 = 1e-2;
 
 /// A dot as the joint bound sees it.
 #[derive(Clone, Copy, Debug)]
@@ -30,25 +34,29 @@ pub(crate) struct JointDot {
     /// Pixel-blurred point-model parameters.
     theta: Theta,
     shape: Shape,
+    /// Derivative coefficients of the model kind (rows: free parameters, columns: basis).
+    coef: [[f64; 7]; 7],
     window: Window,
 }
 
 impl JointDot {
-    pub(crate) fn new(f: &DotFit, window: Window) -> Option<JointDot> {
+    pub(crate) fn new(f: &DotFit, window: Window, kind: Kind) -> Option<JointDot> {
         if !f.status.is_ok() {
             return None;
         }
-        JointDot::from_params(&f.params, window)
+        JointDot::from_params(&f.params, window, kind)
     }
 
-    pub(crate) fn from_params(g: &Gaussian2D, window: Window) -> Option<JointDot> {
+    pub(crate) fn from_params(g: &Gaussian2D, window: Window, kind: Kind) -> Option<JointDot> {
         if !g.is_valid() {
             return None;
         }
         let theta = pixel_blur(&theta_from_gaussian(g));
+        let shape = Shape::of(&theta);
         theta.iter().all(|v| v.is_finite()).then(|| JointDot {
             theta,
-            shape: Shape::of(&theta),
+            shape,
+            coef: kind.coefficients(&theta, &shape),
             window,
         })
     }
@@ -68,9 +76,8 @@ impl JointDot {
             e * dy * dy,
             1.0,
         ];
-        let c = kind.coefficients(&self.theta, s);
-        for k in 0..kind.n_free() {
-            out[k] = (0..7).map(|b| c[k][b] * basis[b]).sum();
+        for (k, o) in out.iter_mut().enumerate().take(kind.n_free()) {
+            *o = (0..7).map(|b| self.coef[k][b] * basis[b]).sum();
         }
         self.theta[2] * e
     }
@@ -96,6 +103,7 @@ pub(crate) fn joint_bound(
     let dim = n_own + n_nb * neighbours.len();
     let mut m = DMatrix::<f64>::zeros(dim, dim);
     let mut grad = vec![0.0; dim];
+    let mut active: Vec<usize> = Vec::with_capacity(dim);
     let mut d = [0.0; 7];
     let w = dot.window;
     for y in w.y..w.y + w.height as i64 {
@@ -106,24 +114,29 @@ pub(crate) fn joint_bound(
             let (fx, fy) = (x as f64, y as f64);
             let mut mu = dot.theta[IB] + dot.eval(kind, fx, fy, &mut d);
             grad[..n_own].copy_from_slice(&d[..n_own]);
+            active.clear();
+            active.extend(0..n_own);
             for (k, nb) in neighbours.iter().enumerate() {
-                mu += nb.eval(kind, fx, fy, &mut d);
+                let v = nb.eval(kind, fx, fy, &mut d);
+                mu += v;
+                // a neighbour below 1e-7 of its peak here adds nothing measurable
+                if v.abs() < 1e-7 * nb.theta[2].abs() {
+                    continue;
+                }
                 let at = n_own + k * n_nb;
                 let mut o = 0;
                 for (q, v) in d[..n_own].iter().enumerate() {
                     if q != ib {
                         grad[at + o] = *v;
+                        active.push(at + o);
                         o += 1;
                     }
                 }
             }
             let wt = 1.0 / noise.variance(mu);
-            for r in 0..dim {
+            for (a, &r) in active.iter().enumerate() {
                 let gr = wt * grad[r];
-                if gr == 0.0 {
-                    continue;
-                }
-                for c in r..dim {
+                for &c in &active[a..] {
                     m[(r, c)] += gr * grad[c];
                 }
             }

@@ -451,12 +451,17 @@ fn render_scene(s: &StudyScene, n: usize, seed: u64) -> Rendered {
                         ..*o
                     },
                     ow,
+                    crate::eval::Kind::Elliptical,
                 )
             })
             .collect();
         let joint = (!others.is_empty())
             .then(|| {
-                let dot = crate::joint::JointDot::from_params(g, win.clip(w, h)?)?;
+                let dot = crate::joint::JointDot::from_params(
+                    g,
+                    win.clip(w, h)?,
+                    crate::eval::Kind::Elliptical,
+                )?;
                 crate::joint::joint_bound(
                     crate::eval::Kind::Elliptical,
                     &dot,

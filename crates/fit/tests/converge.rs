@@ -80,8 +80,8 @@ fn worst(fits: &[DotFit], truth: &[Gaussian2D]) -> f64 {
 }
 
 /// Spacing 7 px at σ 1.6 px (tails overlap), grid rotated 20°: without noise the truth is the
-/// joint solution, and the converged iteration finds it to about the tolerance (0.1 of the
-/// bound) at a peak SNR of 100; two fixed passes (the earlier default) leave a bias of a large part of it.
+/// joint solution, and the converged iteration finds it to within a fifth of the bound (the
+/// tolerance is 0.1 of it) at a peak SNR of 100; two fixed passes (the earlier default) leave a bias of a large part of it.
 #[test]
 fn converged_fits_reach_the_joint_solution_on_a_dense_lattice() {
     let size = 72;
