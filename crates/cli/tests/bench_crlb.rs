@@ -112,12 +112,12 @@ fn bench_writes_the_study_table_and_figure() {
     assert!(by_scene.values().all(|m| *m == methods));
     assert_eq!(rows.len(), scenes.len() * methods.len(), "one row per pair");
     for m in [
-        "lsg/fast/elliptical/auto/subtract20",
-        "lsg/lm_crate/elliptical/auto/subtract20",
-        "lsg/fast/axis_aligned/auto/subtract20",
-        "lsg/fast/circular/auto/subtract20",
-        "lsg/fast/elliptical/integrated/subtract20",
-        "lsg/fast/elliptical/point/subtract20",
+        "lsg/fast/elliptical/auto/subtract40",
+        "lsg/lm_crate/elliptical/auto/subtract40",
+        "lsg/fast/axis_aligned/auto/subtract40",
+        "lsg/fast/circular/auto/subtract40",
+        "lsg/fast/elliptical/integrated/subtract40",
+        "lsg/fast/elliptical/point/subtract40",
         "iwc",
         "tpg",
     ] {
@@ -130,7 +130,7 @@ fn bench_writes_the_study_table_and_figure() {
         assert!(num(r, "us_per_dot") > 0.0);
         // on a clean dot the default least-squares fit is near the bound (20 dots: a ratio
         // has a relative scatter of ~1/sqrt(40) = 16 %)
-        if r["scene"] == "clean_s1.6" && r["method"] == "lsg/fast/elliptical/auto/subtract20" {
+        if r["scene"] == "clean_s1.6" && r["method"] == "lsg/fast/elliptical/auto/subtract40" {
             assert_eq!(f, 0.0);
             let q = num(r, "rms_over_bound_x");
             assert!(q > 0.5 && q < 1.6, "RMS/bound {q}");
@@ -147,7 +147,7 @@ fn bench_writes_the_study_table_and_figure() {
         text.contains("- machine: ") && text.contains("load average"),
         "{text}"
     );
-    assert!(text.contains("| clean_s1.6 | lsg/fast/elliptical/auto/subtract20 |"));
+    assert!(text.contains("| clean_s1.6 | lsg/fast/elliptical/auto/subtract40 |"));
 }
 
 #[test]

@@ -128,7 +128,7 @@ pub enum Neighbours {
 /// max_iterations = 50       # Levenberg-Marquardt iterations (rejected steps included)
 /// tolerance = 0.05          # converged when a step is below this many standard deviations
 /// neighbours = "subtract"   # "subtract" | "none"
-/// neighbour_passes = 20     # at most this many neighbour passes (1 to 100)
+/// neighbour_passes = 40     # at most this many neighbour passes (1 to 100)
 /// neighbour_tolerance = 0.1 # a dot is converged with its neighbours below this (bound units)
 /// residual_false_alarm = 1e-6 # χ² test of each window's residual ("residual" flag); 0: off
 /// bound = true              # compute the per-dot Cramér-Rao bound (crlb_x, crlb_y)
@@ -159,7 +159,7 @@ pub struct FitConfig {
     /// Default `subtract`.
     pub neighbours: Neighbours,
     /// With `neighbours = "subtract"`: the largest number of neighbour passes (1 to
-    /// [`MAX_NEIGHBOUR_PASSES`], default 20). Each pass refits, with its neighbours' latest fits
+    /// [`MAX_NEIGHBOUR_PASSES`], default 40). Each pass refits, with its neighbours' latest fits
     /// subtracted, every dot whose neighbours' models over its window changed by more than
     /// `neighbour_tolerance` since it was last fitted (block Jacobi with an active set); the
     /// passes stop when no dot is left to refit. A dot still not converged after the last pass
@@ -174,7 +174,7 @@ pub struct FitConfig {
     /// only if one Gauss-Newton step of its last fit, with the change of its neighbours' models
     /// over its window since that fit, moves its position by more than this (Mahalanobis length
     /// of the position part). The passes stop when no dot is left to refit. Without noise on a
-    /// lattice of spacing 7 px at σ 1.6 px the worst dot ends 0.16 of its bound from the joint
+    /// lattice of spacing 7 px at σ 1.6 px the worst dot ends 0.13 of its bound from the joint
     /// solution (test `converged_fits_reach_the_joint_solution_on_a_dense_lattice`). A dot whose
     /// pull (or own last move) is still above 5 × this after the last pass is flagged
     /// `unconverged`.
@@ -203,7 +203,7 @@ impl Default for FitConfig {
             max_iterations: 50,
             tolerance: 0.05,
             neighbours: Neighbours::Subtract,
-            neighbour_passes: 20,
+            neighbour_passes: 40,
             neighbour_tolerance: 0.1,
             residual_false_alarm: 1e-6,
             bound: true,
@@ -276,7 +276,7 @@ mod tests {
     #[test]
     fn doc_example_parses_to_defaults() {
         let doc = "model = \"elliptical\"\nsampling = \"auto\"\nestimator = \"lsg\"\nsolver = \"fast\"\n\
-                   max_iterations = 50\ntolerance = 0.05\nneighbours = \"subtract\"\nneighbour_passes = 20\n\
+                   max_iterations = 50\ntolerance = 0.05\nneighbours = \"subtract\"\nneighbour_passes = 40\n\
                    neighbour_tolerance = 0.1\nresidual_false_alarm = 1e-6\nbound = true\n";
         assert_eq!(
             toml::from_str::<FitConfig>(doc).unwrap(),

@@ -410,6 +410,8 @@ impl<'a> Iteration<'a> {
         // contracting: an oscillation or a cycle of failing and recovering fits), are not
         // refitted again
         let mut strikes = vec![0u8; items.len()];
+        // each dot's move in its last refit (a dot looked at but not refitted keeps it)
+        let mut last_move: Vec<f64> = items.iter().map(|it| it.moved).collect();
         let mut owed = vec![0.0f64; items.len()];
         loop {
             let passes = refits.len() as u32;
@@ -468,14 +470,19 @@ impl<'a> Iteration<'a> {
                     *o = 0.0;
                 }
             }
-            for ((it, n), k) in items.iter_mut().zip(next).zip(&mut strikes) {
+            for (((it, n), k), last) in items
+                .iter_mut()
+                .zip(next)
+                .zip(&mut strikes)
+                .zip(&mut last_move)
+            {
                 match n {
                     Some(n) => {
-                        let before = it.moved;
                         // (from pass 4 on: passes 1-3 start from the moments and loose fits)
-                        if passes >= 3 && n.moved > tol && n.moved >= before {
+                        if passes >= 3 && n.moved > tol && n.moved >= *last {
                             *k += 1;
                         }
+                        *last = n.moved;
                         *it = n;
                         refitted += 1;
                     }

@@ -102,18 +102,6 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         neighbour_passes: 2,
         ..cfg.clone()
     };
-    if std::env::var("BT_JOINT_COST").is_ok() {
-        let nob = FitConfig {
-            bound: false,
-            ..cfg.clone()
-        };
-        for _ in 0..3 {
-            let (tb, _, _) = timed(1, &reference, Some(&mask), &det.seeds, &cfg, &noise);
-            let (tn, _, _) = timed(1, &reference, Some(&mask), &det.seeds, &nob, &noise);
-            println!("reference fit with bound {tb:.1} ms, without {tn:.1} ms");
-        }
-        return Ok(());
-    }
     // the no-flow stack: refits from the reference's fits, one pass (earlier versions) against
     // the converged iteration
     let (ref_fits, _) = fit_dots_report(&reference, Some(&mask), &det.seeds, &cfg, &noise)?;
