@@ -413,10 +413,11 @@ impl<'a> Iteration<'a> {
         // each dot's move in its last refit (a dot looked at but not refitted keeps it)
         let mut last_move: Vec<f64> = items.iter().map(|it| it.moved).collect();
         let mut owed = vec![0.0f64; items.len()];
+        // the neighbour models, updated for the dots each pass refits
+        let mut fits: Vec<DotFit> = items.iter().map(|i| i.fit).collect();
+        let mut hood = Neighbourhood::new(&fits, self.seeds, self.cfg.sampling);
         loop {
             let passes = refits.len() as u32;
-            let fits: Vec<DotFit> = items.iter().map(|i| i.fit).collect();
-            let hood = Neighbourhood::new(&fits, self.seeds, self.cfg.sampling);
             // the pull owed since each dot was last fitted or checked (small pulls add up)
             let now = self.neighbour_pull(&items, &hood);
             for (o, p) in owed.iter_mut().zip(&now) {
@@ -465,6 +466,16 @@ impl<'a> Iteration<'a> {
                 Some(&items),
             );
             let mut refitted = 0;
+            let mut reindex = false;
+            for (j, n) in next.iter().enumerate() {
+                if let Some(n) = n {
+                    fits[j] = n.fit;
+                    reindex |= !hood.set(j, &n.fit, self.cfg.sampling);
+                }
+            }
+            if reindex {
+                hood.reindex();
+            }
             for (o, &sel) in owed.iter_mut().zip(&select) {
                 if sel {
                     *o = 0.0;
@@ -502,36 +513,58 @@ impl<'a> Iteration<'a> {
             let hood = Neighbourhood::new(&fits, self.seeds, self.cfg.sampling);
             let kind = crate::eval::Kind::from_model(self.cfg.model);
             let (w, h) = (self.img.width(), self.img.height());
-            let keep = |x: i64, y: i64| crate::joint::usable(self.img, self.mask, x, y);
-            let bounds: Vec<Option<[f64; 2]>> = self
+            // each dot's overlapping neighbours (most dots of a sparse target have none)
+            let groups: Vec<Option<(JointDot, Vec<JointDot>)>> = self
                 .seeds
                 .par_iter()
                 .enumerate()
-                .map_init(
-                    || (Vec::new(), Vec::new()),
-                    |(near, nbs), (i, s)| {
-                        let f = &fits[i];
-                        if !f.crlb_x.is_finite() || s.flags.contains(DotFlags::MISSING) {
-                            return None;
+                .map_init(Vec::new, |near, (i, s)| {
+                    let f = &fits[i];
+                    if !f.crlb_x.is_finite() || s.flags.contains(DotFlags::MISSING) {
+                        return None;
+                    }
+                    let win = s.window.clip(w, h)?;
+                    let mut nbs = Vec::new();
+                    hood.touching(i, win, near, |j, m, same| {
+                        if same || m.share_in(win) < crate::joint::MIN_SHARE {
+                            return;
                         }
-                        let win = s.window.clip(w, h)?;
-                        nbs.clear();
-                        hood.touching(i, win, near, |j, m, same| {
-                            if same || m.share_in(win) < crate::joint::MIN_SHARE {
-                                return;
-                            }
-                            let wj = self.seeds[j].window.clip(w, h);
-                            if let Some(d) = wj.and_then(|wj| JointDot::new(&fits[j], wj, kind)) {
-                                nbs.push(d);
-                            }
-                        });
-                        if nbs.is_empty() {
-                            return None;
+                        let wj = self.seeds[j].window.clip(w, h);
+                        if let Some(d) = wj.and_then(|wj| JointDot::new(&fits[j], wj, kind)) {
+                            nbs.push(d);
                         }
-                        let dot = JointDot::new(f, win, kind)?;
-                        crate::joint::joint_bound(kind, &dot, nbs, self.noise, &keep)
-                    },
-                )
+                    });
+                    if nbs.is_empty() {
+                        return None;
+                    }
+                    Some((JointDot::new(f, win, kind)?, nbs))
+                })
+                .collect();
+            if groups.iter().all(Option::is_none) {
+                return finish(items, self.cfg);
+            }
+            // which pixels a fit may use, once for the image (the joint bound reads each window
+            // and its neighbours' windows)
+            let usable: Vec<bool> = (0..h)
+                .into_par_iter()
+                .flat_map_iter(|y| {
+                    (0..w)
+                        .map(move |x| crate::joint::usable(self.img, self.mask, x as i64, y as i64))
+                })
+                .collect();
+            let keep = |x: i64, y: i64| {
+                x >= 0
+                    && y >= 0
+                    && (x as usize) < w
+                    && (y as usize) < h
+                    && usable[y as usize * w + x as usize]
+            };
+            let bounds: Vec<Option<[f64; 2]>> = groups
+                .par_iter()
+                .map(|g| {
+                    let (dot, nbs) = g.as_ref()?;
+                    crate::joint::joint_bound(kind, dot, nbs, self.noise, &keep)
+                })
                 .collect();
             for (it, b) in items.iter_mut().zip(bounds) {
                 if let Some([bx, by]) = b {
@@ -824,6 +857,27 @@ impl<'a> Neighbourhood<'a> {
             models,
             index,
         }
+    }
+
+    /// Replaces dot `j`'s model by that of `fit`; `false` when the index must be rebuilt
+    /// ([`Neighbourhood::reindex`]): the dot appeared, vanished, moved to another bucket or
+    /// reaches further than the index looks.
+    fn set(&mut self, j: usize, fit: &DotFit, sampling: FitSampling) -> bool {
+        let new = NeighbourModel::new(fit, sampling);
+        let in_place = match (&self.models[j], &new) {
+            (Some(a), Some(b)) => {
+                self.index.key(a) == self.index.key(b) && b.rx.max(b.ry) <= self.index.reach
+            }
+            (None, None) => true,
+            _ => false,
+        };
+        self.models[j] = new;
+        in_place
+    }
+
+    /// Rebuilds the bucket index from the models.
+    fn reindex(&mut self) {
+        self.index = NeighbourIndex::new(&self.models);
     }
 
     /// Calls `f(j, model, same)` for every fitted dot `j ≠ i` whose 5σ reach touches `win`, in
@@ -1348,6 +1402,14 @@ impl NeighbourIndex {
             start,
             items,
         }
+    }
+
+    /// The bucket coordinates of a model's centre.
+    fn key(&self, m: &NeighbourModel) -> (i64, i64) {
+        (
+            (m.x0 / self.cell).floor() as i64,
+            (m.y0 / self.cell).floor() as i64,
+        )
     }
 
     /// Writes into `out` the indices of the fitted dots whose centre is within the largest
