@@ -348,7 +348,7 @@ fn method_label(r: &StudyRow) -> String {
         });
     }
     if diffs.is_empty() {
-        "LSG default (fast, elliptical, auto sampling, 2 passes)".to_string()
+        "LSG default (fast, elliptical, auto sampling, converged neighbour passes)".to_string()
     } else {
         format!("LSG, {}", diffs.join(", "))
     }

@@ -116,10 +116,11 @@ pub(crate) fn fit_match_timed(
     let mut sw = Stopwatch::start();
     let mask = ctx.mask.as_ref();
     let fits = if let Some(nf) = no_flow {
-        // a no-flow image is the reference moved by the camera's common shift: one pass from
-        // the reference fits moved by the tracked dots' median displacement (neighbours
+        // a no-flow image is the reference moved by the camera's common shift: a first pass
+        // from the reference fits moved by the tracked dots' median displacement (neighbours
         // subtracted from those; their tails as rendered once for the stack while this image's
-        // shift is within TAILS_MAX_SHIFT of theirs), instead of moment estimates and two passes
+        // shift is within TAILS_MAX_SHIFT of theirs), instead of moment estimates and two
+        // passes; then the neighbour iteration to convergence on this image's own fits
         let [sx, sy] = init.map(|v| v.unwrap_or(0.0));
         let prior = moved(&ctx.fits, [sx, sy]);
         let small =
