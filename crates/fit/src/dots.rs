@@ -56,6 +56,18 @@ pub struct PassReport {
     pub unconverged: usize,
 }
 
+impl PassReport {
+    /// The report of a fit without neighbour subtraction (no passes).
+    fn none() -> PassReport {
+        PassReport {
+            passes: 0,
+            refits: Vec::new(),
+            converged: true,
+            unconverged: 0,
+        }
+    }
+}
+
 /// [`fit_dots`], with how its neighbour iteration went.
 pub fn fit_dots_report(
     img: &Image,
@@ -77,15 +89,7 @@ pub fn fit_dots_report(
                 },
             )
             .collect();
-        return Ok((
-            finish(items, cfg),
-            PassReport {
-                passes: 0,
-                refits: Vec::new(),
-                converged: true,
-                unconverged: 0,
-            },
-        ));
+        return Ok((finish(items, cfg), PassReport::none()));
     }
     // first neighbour models: the moment estimates (IWC record), which stop at the saddle
     // towards a touching neighbour, whereas a plain least-squares fit of a window holding two
@@ -213,15 +217,7 @@ pub fn refit_dots_report(
             },
         )
         .collect();
-    Ok((
-        finish(items, cfg),
-        PassReport {
-            passes: 0,
-            refits: Vec::new(),
-            converged: true,
-            unconverged: 0,
-        },
-    ))
+    Ok((finish(items, cfg), PassReport::none()))
 }
 
 /// How many seeds are fitted (not flagged missing).
@@ -349,6 +345,19 @@ fn predicted_move(
     (det > 0.0 && m2.is_finite()).then(|| m2.max(0.0).sqrt())
 }
 
+/// The pull of a neighbour that moved by `moved` standard deviations and has `share` of its
+/// squared profile in the window (infinite for a neighbour that was fitted anew, as a dot that
+/// failed and recovered is, when it reaches the window at all).
+fn pull_of(moved: f64, share: f64) -> f64 {
+    if moved.is_finite() {
+        moved * share.sqrt()
+    } else if share > 0.0 {
+        f64::INFINITY
+    } else {
+        0.0
+    }
+}
+
 /// Which pass [`Iteration::pass`] is: `intermediate` (loose tolerance, no weights check: the
 /// fits are refitted later), `warm` (the start is a least-squares fit of the same dot, the
 /// weights at the start are right: no check).
@@ -377,6 +386,9 @@ struct Iteration<'a> {
     seeds: &'a [Seed],
     cfg: &'a FitConfig,
     noise: &'a NoiseModel,
+    /// Half the largest window side plus one (px): how far from a dot's centre the windows it
+    /// may reach lie, beyond its own reach.
+    half: i64,
 }
 
 impl<'a> Iteration<'a> {
@@ -387,12 +399,20 @@ impl<'a> Iteration<'a> {
         cfg: &'a FitConfig,
         noise: &'a NoiseModel,
     ) -> Iteration<'a> {
+        let half = seeds
+            .iter()
+            .map(|s| s.window.width.max(s.window.height))
+            .max()
+            .unwrap_or(0)
+            / 2
+            + 1;
         Iteration {
             img,
             mask,
             seeds,
             cfg,
             noise,
+            half: half as i64,
         }
     }
 
@@ -423,8 +443,7 @@ impl<'a> Iteration<'a> {
             for (o, p) in owed.iter_mut().zip(&now) {
                 *o += p;
             }
-            let pull = owed.clone();
-            let select: Vec<bool> = pull
+            let select: Vec<bool> = owed
                 .iter()
                 .zip(&strikes)
                 .map(|(&p, &k)| p > tol && k < STRIKES)
@@ -433,7 +452,7 @@ impl<'a> Iteration<'a> {
             if count == 0 || passes >= self.cfg.neighbour_passes {
                 let mut unconverged = 0;
                 let limit = UNCONVERGED_FACTOR * tol;
-                for (((it, &p), &k), &pn) in items.iter_mut().zip(&pull).zip(&strikes).zip(&now) {
+                for (((it, &p), &k), &pn) in items.iter_mut().zip(&owed).zip(&strikes).zip(&now) {
                     let f = k >= STRIKES;
                     // stopped at the limit, or frozen: dots that (or whose neighbours) still moved
                     let own = it.moved.is_finite() && it.moved > limit;
@@ -449,7 +468,7 @@ impl<'a> Iteration<'a> {
                     converged: count == 0 && unconverged == 0,
                     unconverged,
                 };
-                return (self.finish(items), report);
+                return (self.finish(items, &hood), report);
             }
             let windowed = (count as f64) < CANVAS_FRACTION * self.seeds.len() as f64;
             let next = self.pass_with(
@@ -507,10 +526,10 @@ impl<'a> Iteration<'a> {
 
     /// The final records: the joint bound where neighbours overlap the window (see
     /// [`crate::joint`]), then the χ² test ([`finish`]).
-    fn finish(&self, mut items: Vec<Item>) -> Vec<DotFit> {
+    /// `hood`: the neighbour models of `items`.
+    fn finish(&self, mut items: Vec<Item>, hood: &Neighbourhood) -> Vec<DotFit> {
         if self.cfg.bound {
             let fits: Vec<DotFit> = items.iter().map(|i| i.fit).collect();
-            let hood = Neighbourhood::new(&fits, self.seeds, self.cfg.sampling);
             let kind = crate::eval::Kind::from_model(self.cfg.model);
             let (w, h) = (self.img.width(), self.img.height());
             // each dot's overlapping neighbours (most dots of a sparse target have none)
@@ -587,14 +606,7 @@ impl<'a> Iteration<'a> {
         if movers.len() * 8 < items.len() {
             // few dots moved: from each of them to the windows it reaches (in ascending order
             // of the movers, so the sums do not depend on the thread count)
-            let half = self
-                .seeds
-                .iter()
-                .map(|s| s.window.width.max(s.window.height))
-                .max()
-                .unwrap_or(0)
-                / 2
-                + 1;
+            let half = self.half as usize;
             let mut pull = vec![0.0; items.len()];
             let mut near = Vec::new();
             for &j in &movers {
@@ -610,15 +622,7 @@ impl<'a> Iteration<'a> {
                     {
                         continue;
                     }
-                    let share = m.share_in(s.window);
-                    let moved = items[j].moved;
-                    pull[i] += if moved.is_finite() {
-                        moved * share.sqrt()
-                    } else if share > 0.0 {
-                        f64::INFINITY
-                    } else {
-                        0.0
-                    };
+                    pull[i] += pull_of(items[j].moved, m.share_in(s.window));
                 }
             }
             return pull;
@@ -637,18 +641,9 @@ impl<'a> Iteration<'a> {
                     return 0.0;
                 }
                 hood.touching(i, win, near, |j, m, same| {
-                    let moved = items[j].moved;
-                    if same || moved == 0.0 {
-                        return;
+                    if !same && items[j].moved != 0.0 {
+                        pull += pull_of(items[j].moved, m.share_in(win));
                     }
-                    let share = m.share_in(win);
-                    pull += if moved.is_finite() {
-                        moved * share.sqrt()
-                    } else if share > 0.0 {
-                        f64::INFINITY
-                    } else {
-                        0.0
-                    };
                 });
                 pull
             })
@@ -723,8 +718,11 @@ impl<'a> Iteration<'a> {
                     let flags = f.load_image(img, mask, s.window);
                     let own = &prev[i];
                     let win = Window::new(f.ws.wx, f.ws.wy, f.ws.w, f.ws.h);
+                    // (an intermediate pass is refitted in full: no later look reads what it saw)
                     raw.clear();
-                    raw.extend_from_slice(&f.ws.data[..f.ws.len()]);
+                    if !kind.intermediate {
+                        raw.extend_from_slice(&f.ws.data[..f.ws.len()]);
+                    }
                     match (tails.and_then(|t| t.for_window(i, win)), &canvas) {
                         (Some((sum, _)), _) => {
                             let ws = &mut f.ws;

@@ -4,9 +4,7 @@
 
 mod common;
 
-use bostrack_core::{
-    DotFit, DotFlags, Gaussian2D, GridIndex, Image, ImageMeta, NoiseModel, Seed, Window,
-};
+use bostrack_core::{DotFit, DotFlags, Gaussian2D, Image, ImageMeta, NoiseModel, Window};
 use bostrack_fit::{FitConfig, fit_dots, fit_dots_report};
 use bostrack_model::{Sampling, add_dot};
 use rand::RngExt;
@@ -49,22 +47,6 @@ fn lattice(spacing: f64, sigma: f64, angle_deg: f64, size: usize) -> (Vec<f64>, 
     (v, dots)
 }
 
-fn seeds_of(dots: &[Gaussian2D]) -> Vec<Seed> {
-    dots.iter()
-        .enumerate()
-        .map(|(k, g)| {
-            let c = [g.x0.round(), g.y0.round()];
-            Seed {
-                index: GridIndex::new(k as i32, 0),
-                predicted: c,
-                centre: c,
-                window: Window::centred(c[0], c[1], 4),
-                flags: DotFlags::NONE,
-            }
-        })
-        .collect()
-}
-
 /// Largest |error| / bound over the dots whose window lies inside the image.
 fn worst(fits: &[DotFit], truth: &[Gaussian2D]) -> f64 {
     fits.iter()
@@ -87,7 +69,7 @@ fn converged_fits_reach_the_joint_solution_on_a_dense_lattice() {
     let size = 72;
     let (v, truth) = lattice(7.0, 1.6, 20.0, size);
     let img = Image::new(size, size, v, ImageMeta::default()).unwrap();
-    let seeds = seeds_of(&truth);
+    let seeds = common::seeds_of(&truth);
     let nm = NoiseModel::read(10.0);
     let (fits, report) = fit_dots_report(&img, None, &seeds, &FitConfig::default(), &nm).unwrap();
     assert!(report.converged, "{report:?}");
@@ -126,7 +108,7 @@ fn dots_still_moving_when_the_passes_run_out_are_flagged() {
     let size = 72;
     let (v, truth) = lattice(7.0, 1.6, 20.0, size);
     let img = Image::new(size, size, v, ImageMeta::default()).unwrap();
-    let seeds = seeds_of(&truth);
+    let seeds = common::seeds_of(&truth);
     let nm = NoiseModel::read(10.0);
     let cfg = FitConfig {
         neighbour_passes: 3,
@@ -168,7 +150,7 @@ fn dots_still_moving_when_the_passes_run_out_are_flagged() {
 fn residual_test_flags_at_its_false_alarm_rate_and_catches_a_speck() {
     let size = 96;
     let (clean, truth) = lattice(11.0, 1.4, 10.0, size);
-    let seeds = seeds_of(&truth);
+    let seeds = common::seeds_of(&truth);
     let nm = NoiseModel {
         read_variance: 64.0,
         gain: 0.6,
@@ -229,7 +211,7 @@ fn joint_bound_exceeds_the_single_dot_bound_where_tails_overlap() {
         let size = 72;
         let (v, truth) = lattice(spacing, 1.6, 20.0, size);
         let img = Image::new(size, size, v, ImageMeta::default()).unwrap();
-        let seeds = seeds_of(&truth);
+        let seeds = common::seeds_of(&truth);
         let joint = fit_dots(&img, None, &seeds, &FitConfig::default(), &nm).unwrap();
         // the bound of the dot alone over the same window at the same parameters
         let r: Vec<f64> = joint

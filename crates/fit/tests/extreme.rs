@@ -9,7 +9,7 @@
 mod common;
 
 use bostrack_core::{
-    DotFit, DotFlags, FitStatus, Gaussian2D, GridIndex, Image, ImageMeta, NoiseModel, Seed, Window,
+    DotFit, DotFlags, FitStatus, Gaussian2D, GridIndex, Image, ImageMeta, NoiseModel, Window,
 };
 use bostrack_fit::{FitConfig, Fitter, Neighbours, Solver, WindowSamples, fit_dots, fit_window};
 use bostrack_model::{ModelKind, Sampling, crlb, render};
@@ -309,20 +309,7 @@ fn two_touching_dots() {
     let mut v = render(&a, full, Sampling::Integrated);
     bostrack_model::add_dot(&b, full, Sampling::Integrated, &mut v);
     let img = Image::new(28, 21, v, ImageMeta::default()).unwrap();
-    let seeds: Vec<Seed> = [a, b]
-        .iter()
-        .enumerate()
-        .map(|(k, g)| {
-            let c = [g.x0.round(), g.y0.round()];
-            Seed {
-                index: GridIndex::new(k as i32, 0),
-                predicted: c,
-                centre: c,
-                window: Window::centred(c[0], c[1], 4),
-                flags: DotFlags::NONE,
-            }
-        })
-        .collect();
+    let seeds = common::seeds_of(&[a, b]);
     let nm = NoiseModel::read(1.0);
     let sub = fit_dots(
         &img,

@@ -1,7 +1,7 @@
 //! Shared helpers of the integration tests: synthetic windows with known noise.
 #![allow(dead_code)]
 
-use bostrack_core::{Gaussian2D, NoiseModel, Window};
+use bostrack_core::{DotFlags, Gaussian2D, GridIndex, NoiseModel, Seed, Window};
 use bostrack_fit::WindowSamples;
 use bostrack_model::{Sampling, render};
 use rand::rngs::StdRng;
@@ -58,4 +58,22 @@ pub fn random_dot(
         background: bg,
     };
     (g, Window::new(0, 0, 2 * half + 1, 2 * half + 1))
+}
+
+/// One seed per dot, as detection delivers them: the centre rounded to a pixel, a 9 × 9 window,
+/// grid index (k, 0).
+pub fn seeds_of(dots: &[Gaussian2D]) -> Vec<Seed> {
+    dots.iter()
+        .enumerate()
+        .map(|(k, g)| {
+            let c = [g.x0.round(), g.y0.round()];
+            Seed {
+                index: GridIndex::new(k as i32, 0),
+                predicted: c,
+                centre: c,
+                window: Window::centred(c[0], c[1], 4),
+                flags: DotFlags::NONE,
+            }
+        })
+        .collect()
 }
