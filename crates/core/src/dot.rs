@@ -92,7 +92,8 @@ pub enum FitStatus {
     Converged,
     /// Stopped at the iteration limit before converging.
     IterationLimit,
-    /// The normal matrix could not be factorised (degenerate window, no dot).
+    /// The normal matrix could not be factorised or the position bound exceeds a pixel
+    /// (degenerate window, no dot), also with the shape held (see `DotFlags::SHAPE_FIXED`).
     Singular,
     /// The centre left its window.
     LeftWindow,

@@ -107,7 +107,7 @@ pub fn fit_dots_report(
         )
         .collect();
     let mut canvas_buf = Vec::new();
-    let it = Iteration::new(img, mask, seeds, cfg, noise);
+    let mut it = Iteration::new(img, mask, seeds, cfg, noise);
     // one set of neighbour models through all passes, each dot's replaced where its new fit
     // passes the gate (see `Plausible`)
     let mut hood = Neighbourhood::new(&prev, seeds, cfg.sampling);
@@ -134,6 +134,7 @@ pub fn fit_dots_report(
     }
     // pass 2: every dot again, to the full tolerance (with the weights check)
     let fits: Vec<DotFit> = first.iter().map(|i| i.fit).collect();
+    it.fixed_shape = median_shape(&fits);
     hood.update(&first, cfg.sampling);
     let second = it.pass(
         &fits,
@@ -200,7 +201,8 @@ pub fn refit_dots_report(
     check_mask(img, mask)?;
     if cfg.neighbours == Neighbours::Subtract && cfg.estimator == Estimator::Lsg {
         let mut canvas_buf = Vec::new();
-        let it = Iteration::new(img, mask, seeds, cfg, noise);
+        let mut it = Iteration::new(img, mask, seeds, cfg, noise);
+        it.fixed_shape = median_shape(prior);
         let mut hood = Neighbourhood::new(prior, seeds, cfg.sampling);
         let first = it.pass(
             prior,
@@ -228,6 +230,38 @@ pub fn refit_dots_report(
         )
         .collect();
     Ok((finish(items, cfg), PassReport::none()))
+}
+
+/// Fewer converged fits than this: no median shape to hold a singular fit's shape at.
+const MIN_SHAPE_FITS: usize = 10;
+
+/// The median σx, σy and ρ of the converged fits not at a bound (`None` with fewer than
+/// [`MIN_SHAPE_FITS`]).
+fn median_shape(fits: &[DotFit]) -> Option<[f64; 3]> {
+    let good: Vec<&Gaussian2D> = fits
+        .iter()
+        .filter(|f| {
+            f.status == FitStatus::Converged
+                && !f
+                    .flags
+                    .intersects(DotFlags::AT_BOUND | DotFlags::SHAPE_FIXED)
+                && f.params.is_valid()
+        })
+        .map(|f| &f.params)
+        .collect();
+    if good.len() < MIN_SHAPE_FITS {
+        return None;
+    }
+    let median = |get: fn(&Gaussian2D) -> f64| {
+        let mut v: Vec<f64> = good.iter().map(|g| get(g)).collect();
+        let mid = v.len() / 2;
+        *v.select_nth_unstable_by(mid, f64::total_cmp).1
+    };
+    Some([
+        median(|g| g.sigma_x),
+        median(|g| g.sigma_y),
+        median(|g| g.rho),
+    ])
 }
 
 /// How many seeds are fitted (not flagged missing).
@@ -399,6 +433,9 @@ struct Iteration<'a> {
     /// Half the largest window side plus one (px): how far from a dot's centre the windows it
     /// may reach lie, beyond its own reach.
     half: i64,
+    /// The shape at which a singular least-squares fit is fitted again with its shape held
+    /// (`SHAPE_FIXED`): the median of the image's converged fits, from the second pass on.
+    fixed_shape: Option<[f64; 3]>,
 }
 
 impl<'a> Iteration<'a> {
@@ -423,6 +460,7 @@ impl<'a> Iteration<'a> {
             cfg,
             noise,
             half: half as i64,
+            fixed_shape: None,
         }
     }
 
@@ -715,6 +753,7 @@ impl<'a> Iteration<'a> {
                     let mut f = Fitter::new(cfg);
                     f.intermediate = kind.intermediate;
                     f.warm = kind.warm;
+                    f.fixed_shape = self.fixed_shape;
                     (f, Vec::new(), Vec::new())
                 },
                 |(f, near, raw), (i, s)| {

@@ -169,6 +169,8 @@ pub(crate) enum Kind {
     Elliptical,
     AxisAligned,
     Circular,
+    /// Position, amplitude and background only, the shape (σx, σy, ρ) held where it starts.
+    FixedShape,
 }
 
 impl Kind {
@@ -185,6 +187,7 @@ impl Kind {
             Kind::Elliptical => &[IX, IY, IA, IU, IV, IT, IB],
             Kind::AxisAligned => &[IX, IY, IA, IU, IV, IB],
             Kind::Circular => &[IX, IY, IA, IU, IB],
+            Kind::FixedShape => &[IX, IY, IA, IB],
         }
     }
     pub fn n_free(self) -> usize {
@@ -224,7 +227,7 @@ impl Kind {
     /// Puts θ on the model's manifold (ρ = 0, σy = σx as the kind requires).
     pub fn constrain(self, theta: &mut Theta) {
         match self {
-            Kind::Elliptical => {}
+            Kind::Elliptical | Kind::FixedShape => {}
             Kind::AxisAligned => theta[IT] = 0.0,
             Kind::Circular => {
                 let m = 0.5 * (theta[IU] + theta[IV]);
@@ -627,7 +630,7 @@ pub(crate) fn fill_phi_integrated(ws: &mut Workspace, theta: &Theta, kind: Kind)
     let s = Shape::of(theta);
     let x_first = ws.wx as f64 - theta[IX];
     let y_first = ws.wy as f64 - theta[IY];
-    if kind != Kind::Elliptical || theta[IT] == 0.0 {
+    if matches!(kind, Kind::AxisAligned | Kind::Circular) || theta[IT] == 0.0 {
         // separable and exact: E = gx(X) gy(Y)
         // (the first w entries of tmp hold the x moments, the y moments are made per row)
         let [p1, p2, p3, p4, p5] = &mut ws.phi;

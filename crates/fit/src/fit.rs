@@ -65,6 +65,19 @@ pub struct Fitter {
     pub(crate) warm: bool,
     /// What the last least-squares fit of this fitter left beside its record.
     pub(crate) last: LastFit,
+    /// The shape (σx, σy, ρ) at which a least-squares fit that ends singular is fitted again
+    /// with its shape held (position, amplitude, background free; `SHAPE_FIXED`).
+    pub(crate) fixed_shape: Option<[f64; 3]>,
+}
+
+/// The amplitude, in its standard deviations, below which a fit with its shape held is no dot.
+const FIXED_SHAPE_MIN_Z: f64 = 5.0;
+
+/// Whether θ has the shape (σx, σy, ρ) of `g`.
+fn same_shape(g: &Gaussian2D, theta: &Theta) -> bool {
+    let h = gaussian_from_theta(theta);
+    let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * a.abs().max(1.0);
+    close(g.sigma_x, h.sigma_x) && close(g.sigma_y, h.sigma_y) && close(g.rho, h.rho)
 }
 
 /// Beside a least-squares record: the window's χ² and how far the fit moved from its hint.
@@ -104,6 +117,7 @@ impl Fitter {
             intermediate: false,
             warm: false,
             last: LastFit::default(),
+            fixed_shape: None,
         }
     }
 
@@ -287,24 +301,47 @@ impl Fitter {
                         ..again
                     };
                 }
+                let mut shape_fixed = false;
+                if out.status == FitStatus::Singular
+                    && let Some(shape) = self.fixed_shape
+                    && let Some(again) = self.solve_fixed_shape(start, hint, &bounds, noise, shape)
+                {
+                    out = Outcome {
+                        iterations: out.iterations + again.iterations,
+                        ..again
+                    };
+                    shape_fixed = true;
+                }
+                let kind = if shape_fixed {
+                    Kind::FixedShape
+                } else {
+                    self.kind
+                };
                 self.last = LastFit {
                     chi2: out.cost,
-                    dof: self.ws.n_used.saturating_sub(self.kind.n_free()),
+                    dof: self.ws.n_used.saturating_sub(kind.n_free()),
                     moved: match hint {
-                        Some(h) if out.status.is_ok() => {
+                        // (a shape held at another value than the hint's: moved by more than
+                        // its free parameters say)
+                        Some(h)
+                            if out.status.is_ok()
+                                && (!shape_fixed || same_shape(h, &out.theta)) =>
+                        {
                             let (from, to) = (theta_from_gaussian(h), out.theta);
                             let mut d = [0.0; 7];
                             // the dot as its neighbours see it: without its background
-                            for (k, &p) in self.kind.free().iter().enumerate() {
+                            for (k, &p) in kind.free().iter().enumerate() {
                                 d[k] = if p == IB { 0.0 } else { to[p] - from[p] };
                             }
-                            crate::solver::quad_form(&out.fisher, &d, self.kind.n_free())
+                            crate::solver::quad_form(&out.fisher, &d, kind.n_free())
                                 .max(0.0)
                                 .sqrt()
                         }
                         _ => f64::INFINITY,
                     },
+                    // (a held shape: its Fisher matrix is of other parameters than the model's)
                     point_fisher: (out.status.is_ok()
+                        && !shape_fixed
                         && match self.cfg.sampling {
                             FitSampling::Point => true,
                             FitSampling::Auto => conditional_sigma(&out.theta) >= AUTO_SIGMA,
@@ -312,9 +349,41 @@ impl Fitter {
                         })
                     .then_some(out.fisher),
                 };
+                if shape_fixed {
+                    return self.lsg_record(&out, flags | DotFlags::SHAPE_FIXED);
+                }
                 self.lsg_record(&out, flags)
             }
         }
+    }
+
+    /// The fit again from its start with the shape held at `shape` (σx, σy, ρ): position,
+    /// amplitude and background only. `None` unless that converges with a position bound
+    /// within a pixel and an amplitude of at least [`FIXED_SHAPE_MIN_Z`] standard deviations
+    /// (an empty window does not become a dot).
+    fn solve_fixed_shape(
+        &mut self,
+        start: [f64; 2],
+        hint: Option<&Gaussian2D>,
+        bounds: &Bounds,
+        noise: &NoiseModel,
+        shape: [f64; 3],
+    ) -> Option<Outcome> {
+        let t = self.start_theta(start, hint, bounds);
+        let mut g = gaussian_from_theta(&t);
+        (g.sigma_x, g.sigma_y, g.rho) = (shape[0], shape[1], shape[2]);
+        let mut theta0 = theta_from_gaussian(&g);
+        bounds.project(&mut theta0);
+        let kind = std::mem::replace(&mut self.kind, Kind::FixedShape);
+        let out = self.solve(theta0, bounds, noise);
+        self.kind = kind;
+        if !out.status.is_ok() {
+            return None;
+        }
+        let mut e = [0.0; 7];
+        e[2] = 1.0; // the amplitude (free parameters x, y, amplitude, background)
+        let var = crate::solver::solve_damped(&out.fisher, &e, 4, 0.0)?[2];
+        (var > 0.0 && out.theta[crate::eval::IA] >= FIXED_SHAPE_MIN_Z * var.sqrt()).then_some(out)
     }
 
     fn solve(&mut self, theta0: Theta, bounds: &Bounds, noise: &NoiseModel) -> Outcome {

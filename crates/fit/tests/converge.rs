@@ -4,48 +4,11 @@
 
 mod common;
 
-use bostrack_core::{DotFit, DotFlags, Gaussian2D, Image, ImageMeta, NoiseModel, Window};
+use bostrack_core::{DotFit, DotFlags, Gaussian2D, Image, ImageMeta, NoiseModel};
 use bostrack_fit::{FitConfig, fit_dots, fit_dots_report};
-use bostrack_model::{Sampling, add_dot};
+use bostrack_model::Sampling;
 use rand::RngExt;
 use rand_distr::StandardNormal;
-
-/// A square lattice (`spacing`, rotated by `angle_deg`) of equal dots over a `size²` image,
-/// pixel-integrated, without noise; only dots at least 6 px inside the image.
-fn lattice(spacing: f64, sigma: f64, angle_deg: f64, size: usize) -> (Vec<f64>, Vec<Gaussian2D>) {
-    let (s, c) = angle_deg.to_radians().sin_cos();
-    let mut dots = Vec::new();
-    let n = (size as f64 / spacing) as i32 + 2;
-    let centre = size as f64 / 2.0 + 0.3;
-    for i in -n..=n {
-        for j in -n..=n {
-            let (u, v) = (i as f64 * spacing, j as f64 * spacing);
-            let (x, y) = (centre + c * u - s * v, centre + s * u + c * v);
-            if x < 6.0 || y < 6.0 || x > size as f64 - 7.0 || y > size as f64 - 7.0 {
-                continue;
-            }
-            dots.push(Gaussian2D {
-                x0: x,
-                y0: y,
-                amplitude: 1000.0,
-                sigma_x: sigma,
-                sigma_y: sigma,
-                rho: 0.0,
-                background: 0.0,
-            });
-        }
-    }
-    let mut v = vec![100.0; size * size];
-    for g in &dots {
-        add_dot(
-            g,
-            Window::new(0, 0, size, size),
-            Sampling::Integrated,
-            &mut v,
-        );
-    }
-    (v, dots)
-}
 
 /// Largest |error| / bound over the dots whose window lies inside the image.
 fn worst(fits: &[DotFit], truth: &[Gaussian2D]) -> f64 {
@@ -67,7 +30,7 @@ fn worst(fits: &[DotFit], truth: &[Gaussian2D]) -> f64 {
 #[test]
 fn converged_fits_reach_the_joint_solution_on_a_dense_lattice() {
     let size = 72;
-    let (v, truth) = lattice(7.0, 1.6, 20.0, size);
+    let (v, truth) = common::lattice(7.0, 1.6, 20.0, size);
     let img = Image::new(size, size, v, ImageMeta::default()).unwrap();
     let seeds = common::seeds_of(&truth);
     let nm = NoiseModel::read(10.0);
@@ -106,7 +69,7 @@ fn converged_fits_reach_the_joint_solution_on_a_dense_lattice() {
 #[test]
 fn dots_still_moving_when_the_passes_run_out_are_flagged() {
     let size = 72;
-    let (v, truth) = lattice(7.0, 1.6, 20.0, size);
+    let (v, truth) = common::lattice(7.0, 1.6, 20.0, size);
     let img = Image::new(size, size, v, ImageMeta::default()).unwrap();
     let seeds = common::seeds_of(&truth);
     let nm = NoiseModel::read(10.0);
@@ -149,7 +112,7 @@ fn dots_still_moving_when_the_passes_run_out_are_flagged() {
 #[test]
 fn residual_test_flags_at_its_false_alarm_rate_and_catches_a_speck() {
     let size = 96;
-    let (clean, truth) = lattice(11.0, 1.4, 10.0, size);
+    let (clean, truth) = common::lattice(11.0, 1.4, 10.0, size);
     let seeds = common::seeds_of(&truth);
     let nm = NoiseModel {
         read_variance: 64.0,
@@ -209,7 +172,7 @@ fn joint_bound_exceeds_the_single_dot_bound_where_tails_overlap() {
     let nm = NoiseModel::read(10.0);
     let ratio = |spacing: f64| {
         let size = 72;
-        let (v, truth) = lattice(spacing, 1.6, 20.0, size);
+        let (v, truth) = common::lattice(spacing, 1.6, 20.0, size);
         let img = Image::new(size, size, v, ImageMeta::default()).unwrap();
         let seeds = common::seeds_of(&truth);
         let joint = fit_dots(&img, None, &seeds, &FitConfig::default(), &nm).unwrap();
@@ -253,7 +216,7 @@ fn joint_bound_exceeds_the_single_dot_bound_where_tails_overlap() {
 #[test]
 fn a_wandering_fit_does_not_spread_through_the_iteration() {
     let size = 400;
-    let (clean, truth) = lattice(10.0, 1.25, 0.0, size);
+    let (clean, truth) = common::lattice(10.0, 1.25, 0.0, size);
     // amplitude 50 on a background of 150: the lattice helper draws amplitude 1000 over 100
     let clean: Vec<f64> = clean.iter().map(|v| 150.0 + (v - 100.0) * 0.05).collect();
     let nm = NoiseModel {
@@ -261,12 +224,7 @@ fn a_wandering_fit_does_not_spread_through_the_iteration() {
         gain: 1.0,
         offset: 0.0,
     };
-    let mut rng = common::rng(11);
-    let v: Vec<f64> = clean
-        .iter()
-        .map(|&m| m + nm.sigma(m) * rng.sample::<f64, _>(StandardNormal))
-        .collect();
-    let img = Image::new(size, size, v, ImageMeta::default()).unwrap();
+    let img = common::noisy_image(&clean, size, &nm, 11);
     let seeds = common::seeds_of(&truth);
     let summary = |passes: u32| {
         let cfg = FitConfig {

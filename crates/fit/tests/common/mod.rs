@@ -3,7 +3,7 @@
 
 use bostrack_core::{DotFlags, Gaussian2D, GridIndex, NoiseModel, Seed, Window};
 use bostrack_fit::WindowSamples;
-use bostrack_model::{Sampling, render};
+use bostrack_model::{Sampling, add_dot, render};
 use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
 use rand_distr::StandardNormal;
@@ -76,4 +76,62 @@ pub fn seeds_of(dots: &[Gaussian2D]) -> Vec<Seed> {
             }
         })
         .collect()
+}
+
+/// A square lattice (`spacing`, rotated by `angle_deg`) of equal dots over a `size²` image,
+/// pixel-integrated, without noise; only dots at least 6 px inside the image.
+pub fn lattice(
+    spacing: f64,
+    sigma: f64,
+    angle_deg: f64,
+    size: usize,
+) -> (Vec<f64>, Vec<Gaussian2D>) {
+    let (s, c) = angle_deg.to_radians().sin_cos();
+    let mut dots = Vec::new();
+    let n = (size as f64 / spacing) as i32 + 2;
+    let centre = size as f64 / 2.0 + 0.3;
+    for i in -n..=n {
+        for j in -n..=n {
+            let (u, v) = (i as f64 * spacing, j as f64 * spacing);
+            let (x, y) = (centre + c * u - s * v, centre + s * u + c * v);
+            if x < 6.0 || y < 6.0 || x > size as f64 - 7.0 || y > size as f64 - 7.0 {
+                continue;
+            }
+            dots.push(Gaussian2D {
+                x0: x,
+                y0: y,
+                amplitude: 1000.0,
+                sigma_x: sigma,
+                sigma_y: sigma,
+                rho: 0.0,
+                background: 0.0,
+            });
+        }
+    }
+    let mut v = vec![100.0; size * size];
+    for g in &dots {
+        add_dot(
+            g,
+            Window::new(0, 0, size, size),
+            Sampling::Integrated,
+            &mut v,
+        );
+    }
+    (v, dots)
+}
+
+/// A square `size × size` image of `clean` plus Gaussian noise of `noise`'s variance (seed
+/// `seed`).
+pub fn noisy_image(
+    clean: &[f64],
+    size: usize,
+    noise: &NoiseModel,
+    seed: u64,
+) -> bostrack_core::Image {
+    let mut rng = rng(seed);
+    let v: Vec<f64> = clean
+        .iter()
+        .map(|&m| m + noise.sigma(m) * rng.sample::<f64, _>(StandardNormal))
+        .collect();
+    bostrack_core::Image::new(size, size, v, bostrack_core::ImageMeta::default()).unwrap()
 }
