@@ -83,3 +83,59 @@ fn an_empty_window_is_not_made_a_dot_by_holding_the_shape() {
         "an empty window fitted as a dot with the shape held"
     );
 }
+
+/// The same with the scene generator (`bostrack synth`): σ 0.3 px, spacing 10 px rotated by 7°,
+/// read and shot noise; every dot usable, and the reported bounds describe the errors.
+#[test]
+fn undersampled_synth_scene_reports_every_position_with_its_bound() {
+    let mut cfg = bostrack_synth::SceneConfig {
+        width: 256,
+        height: 256,
+        seed: 31,
+        ..Default::default()
+    };
+    cfg.lattice.spacing = 10.0;
+    cfg.lattice.angle_deg = 7.0;
+    cfg.dots.sigma_x = 0.3;
+    cfg.dots.sigma_y = 0.3;
+    cfg.noise.read_noise = 10.0;
+    cfg.noise.gain = 0.6;
+    cfg.noise.offset = 0.0;
+    let scene = bostrack_synth::Scene::reference(&cfg).unwrap();
+    let nm = NoiseModel {
+        read_variance: 100.0 + 1.0 / 12.0,
+        gain: 0.6,
+        offset: 0.0,
+    };
+    let dots: Vec<bostrack_core::Gaussian2D> = scene
+        .truth
+        .iter()
+        .filter(|t| t.flags.is_empty())
+        .map(|t| t.params)
+        .collect();
+    let seeds = common::seeds_of(&dots);
+    let fits = fit_dots(&scene.image, None, &seeds, &FitConfig::default(), &nm).unwrap();
+    let usable = fits.iter().filter(|f| f.status.is_ok()).count();
+    let held = fits
+        .iter()
+        .filter(|f| f.flags.contains(DotFlags::SHAPE_FIXED))
+        .count();
+    // RMS of the error in units of each dot's own bound, over both axes
+    let (mut z2, mut n) = (0.0, 0);
+    for (f, g) in fits.iter().zip(&dots).filter(|(f, _)| f.status.is_ok()) {
+        z2 += ((f.params.x0 - g.x0) / f.crlb_x).powi(2) + ((f.params.y0 - g.y0) / f.crlb_y).powi(2);
+        n += 2;
+    }
+    let ratio = (z2 / n as f64).sqrt();
+    println!(
+        "{} dots: {usable} usable, {held} held; RMS of error / bound {ratio:.3}",
+        dots.len()
+    );
+    assert!(held * 10 > dots.len(), "{held} held");
+    assert!(
+        usable * 1000 >= dots.len() * 995,
+        "{usable} of {} usable",
+        dots.len()
+    );
+    assert!((0.85..=1.15).contains(&ratio), "RMS error / bound {ratio}");
+}
