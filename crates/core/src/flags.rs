@@ -97,7 +97,8 @@ bit_flags! {
     MASKED = 1, "masked";
     /// The dot is much fainter than its neighbours.
     FAINT = 2, "faint";
-    /// No dot was found at this lattice site.
+    /// No dot at this lattice site: the detector found none, and neither did the fit of the site
+    /// (shape held at the image's median dot: no amplitude of 4.5 standard deviations).
     MISSING = 3, "missing";
     /// Shape or intensity far from the neighbours' (target defect).
     DEFECT = 4, "defect";
@@ -129,7 +130,7 @@ bit_flags! {
     /// (an unmodelled neighbour, a defect, a speck: the bound does not describe this fit).
     RESIDUAL = 15, "residual";
     /// The shape (σx, σy, ρ) could not be resolved in this window (an undersampled or very
-    /// faint dot: the full fit was singular); position, amplitude and background were fitted
+    /// faint dot: the full fit was singular, left its window or was not finite); position, amplitude and background were fitted
     /// with the shape held at the image's median dot, and `crlb_x`, `crlb_y` are the bound for
     /// that known shape. The position is a measurement; `sigma_x`, `sigma_y`, `rho` are not.
     SHAPE_FIXED = 16, "shape_fixed";

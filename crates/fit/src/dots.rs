@@ -17,8 +17,9 @@ const REACH_SIGMAS: f64 = 5.0;
 
 /// Fits every seed's window (rayon over dots; the output is in the order of `seeds`).
 ///
-/// Seeds flagged `MISSING` are not fitted (status `NotFitted`); every record carries its
-/// seed's flags and grid index. With [`Neighbours::Subtract`] (the default, least-squares
+/// Seeds flagged `MISSING` are looked for by their fit once (least squares; see
+/// `Fitter::fit_loaded_present`): where no dot is found they keep status `NotFitted`; every
+/// record carries its seed's flags (less `MISSING` where a dot was found) and grid index. With [`Neighbours::Subtract`] (the default, least-squares
 /// estimator only) the dots are fitted jointly with their neighbours by a block-Jacobi
 /// iteration with an active set: a dot is fitted to its window minus the fitted dots (without
 /// background) of its neighbours, each over the pixels of its 5σ box (rendered once per pass
@@ -587,7 +588,7 @@ impl<'a> Iteration<'a> {
                 .enumerate()
                 .map_init(Vec::new, |near, (i, s)| {
                     let f = &fits[i];
-                    if !f.crlb_x.is_finite() || s.flags.contains(DotFlags::MISSING) {
+                    if !f.crlb_x.is_finite() || absent(s, f) {
                         return None;
                     }
                     let win = s.window.clip(w, h)?;
@@ -668,7 +669,7 @@ impl<'a> Iteration<'a> {
                 for &i in &near {
                     let s = &self.seeds[i];
                     if i == j
-                        || s.flags.contains(DotFlags::MISSING)
+                        || absent(s, &items[i].fit)
                         || !m.reaches(s.window)
                         || same_seed(s, &self.seeds[j])
                     {
@@ -683,7 +684,7 @@ impl<'a> Iteration<'a> {
             .par_iter()
             .enumerate()
             .map_init(Vec::new, |near, (i, s)| {
-                if s.flags.contains(DotFlags::MISSING) {
+                if absent(s, &items[i].fit) {
                     return 0.0;
                 }
                 let win = s.window;
@@ -757,7 +758,14 @@ impl<'a> Iteration<'a> {
                     (f, Vec::new(), Vec::new())
                 },
                 |(f, near, raw), (i, s)| {
-                    if s.flags.contains(DotFlags::MISSING) || select.is_some_and(|sel| !sel[i]) {
+                    // a site the detector found no dot at is looked for once, in the first full
+                    // pass that knows the image's dot shape (see `Fitter::fit_loaded_present`);
+                    // where a dot is found it is fitted as every other from then on
+                    let look_for = absent(s, &prev[i])
+                        && self.fixed_shape.is_some()
+                        && !kind.intermediate
+                        && select.is_none();
+                    if (absent(s, &prev[i]) && !look_for) || select.is_some_and(|sel| !sel[i]) {
                         return None;
                     }
                     let flags = f.load_image(img, mask, s.window);
@@ -801,9 +809,17 @@ impl<'a> Iteration<'a> {
                     } else {
                         (s.centre, None)
                     };
-                    let mut fit = f.fit_loaded(flags, start, hint.as_ref(), noise);
+                    let mut fit = if look_for {
+                        f.fit_loaded_present(flags, s.centre, noise)?
+                    } else {
+                        f.fit_loaded(flags, start, hint.as_ref(), noise)
+                    };
                     fit.index = s.index;
                     fit.flags |= s.flags;
+                    if fit.status.is_ok() {
+                        // (found by its fit at a site the detector called empty)
+                        fit.flags.remove(DotFlags::MISSING);
+                    }
                     let mut item = Item::from_fitter(fit, f);
                     item.seen = seen;
                     Some(item)
@@ -1450,6 +1466,12 @@ fn fit_seed(
     fit.index = s.index;
     fit.flags |= s.flags;
     fit
+}
+
+/// Whether seed `s` holds no dot: flagged `MISSING` by the detector, and not found by its fit
+/// (`fit`, the seed's current record) either.
+fn absent(s: &Seed, fit: &DotFit) -> bool {
+    s.flags.contains(DotFlags::MISSING) && !fit.status.is_ok()
 }
 
 /// Two seeds closer than 1.5 px are the same dot found twice: never subtract one from the other.

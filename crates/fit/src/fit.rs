@@ -65,13 +65,19 @@ pub struct Fitter {
     pub(crate) warm: bool,
     /// What the last least-squares fit of this fitter left beside its record.
     pub(crate) last: LastFit,
-    /// The shape (σx, σy, ρ) at which a least-squares fit that ends singular is fitted again
+    /// The shape (σx, σy, ρ) at which a least-squares fit that fails (singular, left its window, not finite) is fitted again
     /// with its shape held (position, amplitude, background free; `SHAPE_FIXED`).
     pub(crate) fixed_shape: Option<[f64; 3]>,
 }
 
-/// The amplitude, in its standard deviations, below which a fit with its shape held is no dot.
+/// The amplitude, in its standard deviations, below which a fit with its shape held is no dot
+/// (a singular fit of a window the detector found a dot in).
 const FIXED_SHAPE_MIN_Z: f64 = 5.0;
+
+/// The same for a lattice site the detector found no dot at: whether a dot is there is decided
+/// by this amplitude significance of its held-shape fit (the position free within the window).
+/// Measured false-alarm rate on empty sites: see `crates/pipeline/tests/faint.rs`.
+const PRESENCE_MIN_Z: f64 = 4.5;
 
 /// Whether θ has the shape (σx, σy, ρ) of `g`.
 fn same_shape(g: &Gaussian2D, theta: &Theta) -> bool {
@@ -302,9 +308,18 @@ impl Fitter {
                     };
                 }
                 let mut shape_fixed = false;
-                if out.status == FitStatus::Singular
-                    && let Some(shape) = self.fixed_shape
-                    && let Some(again) = self.solve_fixed_shape(start, hint, &bounds, noise, shape)
+                if matches!(
+                    out.status,
+                    FitStatus::Singular | FitStatus::LeftWindow | FitStatus::NonFinite
+                ) && let Some(shape) = self.fixed_shape
+                    && let Some(again) = self.solve_fixed_shape(
+                        start,
+                        hint,
+                        &bounds,
+                        noise,
+                        shape,
+                        FIXED_SHAPE_MIN_Z,
+                    )
                 {
                     out = Outcome {
                         iterations: out.iterations + again.iterations,
@@ -357,10 +372,37 @@ impl Fitter {
         }
     }
 
+    /// Whether the pixels loaded in the workspace hold a dot near `start` (a lattice site where
+    /// the detector found none): a least-squares fit with the shape held at
+    /// [`Fitter::fixed_shape`] (the image's median dot) that converges with an amplitude of at
+    /// least [`PRESENCE_MIN_Z`] standard deviations and a position bound within a pixel;
+    /// then the full fit from there ([`Fitter::fit_loaded`], which holds the shape again where
+    /// the full fit is singular). `None`: no dot (or no least-squares fit, no median shape).
+    pub(crate) fn fit_loaded_present(
+        &mut self,
+        flags: DotFlags,
+        start: [f64; 2],
+        noise: &NoiseModel,
+    ) -> Option<DotFit> {
+        let shape = self.fixed_shape?;
+        let ws = &self.ws;
+        if self.cfg.estimator != Estimator::Lsg
+            || ws.n_used <= Kind::FixedShape.n_free()
+            || !start.iter().all(|v| v.is_finite())
+        {
+            return None;
+        }
+        let bounds = Bounds::for_window(ws.wx, ws.wy, ws.w, ws.h);
+        let held = self.solve_fixed_shape(start, None, &bounds, noise, shape, PRESENCE_MIN_Z)?;
+        let g = gaussian_from_theta(&held.theta);
+        let fit = self.fit_loaded(flags, [g.x0, g.y0], Some(&g), noise);
+        fit.status.is_ok().then_some(fit)
+    }
+
     /// The fit again from its start with the shape held at `shape` (σx, σy, ρ): position,
     /// amplitude and background only. `None` unless that converges with a position bound
-    /// within a pixel and an amplitude of at least [`FIXED_SHAPE_MIN_Z`] standard deviations
-    /// (an empty window does not become a dot).
+    /// within a pixel and an amplitude of at least `min_z` standard deviations (an empty window
+    /// does not become a dot).
     fn solve_fixed_shape(
         &mut self,
         start: [f64; 2],
@@ -368,6 +410,7 @@ impl Fitter {
         bounds: &Bounds,
         noise: &NoiseModel,
         shape: [f64; 3],
+        min_z: f64,
     ) -> Option<Outcome> {
         let t = self.start_theta(start, hint, bounds);
         let mut g = gaussian_from_theta(&t);
@@ -383,7 +426,7 @@ impl Fitter {
         let mut e = [0.0; 7];
         e[2] = 1.0; // the amplitude (free parameters x, y, amplitude, background)
         let var = crate::solver::solve_damped(&out.fisher, &e, 4, 0.0)?[2];
-        (var > 0.0 && out.theta[crate::eval::IA] >= FIXED_SHAPE_MIN_Z * var.sqrt()).then_some(out)
+        (var > 0.0 && out.theta[crate::eval::IA] >= min_z * var.sqrt()).then_some(out)
     }
 
     fn solve(&mut self, theta0: Theta, bounds: &Bounds, noise: &NoiseModel) -> Outcome {
