@@ -128,6 +128,9 @@ bit_flags! {
     /// quantile of the χ² distribution at the false-alarm rate `[fit] residual_false_alarm`
     /// (an unmodelled neighbour, a defect, a speck: the bound does not describe this fit).
     RESIDUAL = 15, "residual";
+    /// The dot's fitted centre (in the reference or the gradient image) lies outside the region
+    /// of interest: its pixel, the one the centre rounds to, is not kept by the mask.
+    OUTSIDE_MASK = 16, "outside_mask";
 }
 }
 

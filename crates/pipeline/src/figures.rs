@@ -151,11 +151,7 @@ impl FigureSetup {
         if !(x.is_finite() && y.is_finite()) {
             return true;
         }
-        let (cx, cy) = (x.round(), y.round());
-        if cx < 0.0 || cy < 0.0 || cx >= m.width() as f64 || cy >= m.height() as f64 {
-            return false;
-        }
-        m.keeps(cx as usize, cy as usize)
+        m.keeps_point(x, y)
     }
 
     fn map_frame<'a>(&'a self, title: &'a str) -> bf::MapFrame<'a> {

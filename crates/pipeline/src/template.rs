@@ -81,7 +81,8 @@ pub(crate) const SECTIONS: &[SectionDoc] = &[
             ),
             key(
                 "mask",
-                "Region-of-interest mask image (white = keep, whatever its photometric tag);\n\
+                "Region-of-interest mask image: pixels displaying brighter than the midpoint of its\n\
+                 darkest and brightest values are kept ({0,1}, {0,255}, {0,65535}, any photometric tag);\n\
                  \"\" for the whole image.",
             ),
         ],

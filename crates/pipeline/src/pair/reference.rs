@@ -185,9 +185,10 @@ impl ReferenceContext {
                 });
             }
         }
+        let mask_path = plan.mask.clone().unwrap_or_else(|| PathBuf::from("<mask>"));
         if let Some(m) = mask.as_ref().filter(|m| !m.matches(&reference)) {
             return Err(PipelineError::SizeMismatch {
-                path: source.clone(),
+                path: mask_path,
                 what: "mask size".into(),
                 expected: size_text(w, h),
                 got: size_text(m.width(), m.height()),
@@ -232,9 +233,21 @@ impl ReferenceContext {
                 }
             })
         };
+        // a failure of the reference side while a mask is given names the mask too
+        let with_mask = |e: PipelineError| match &mask {
+            Some(m) => PipelineError::Masked {
+                mask: mask_path.clone(),
+                kept: m.count_kept(),
+                total: m.width() * m.height(),
+                source: Box::new(e),
+            },
+            None => e,
+        };
         let (noise_result, detect_result) = rayon::join(|| timed(noise_job), || timed(detect_job));
-        let (((noise, noise_source), noise_time), (detection, detect_time)) =
-            (noise_result?, detect_result?);
+        let (((noise, noise_source), noise_time), (detection, detect_time)) = (
+            noise_result.map_err(with_mask)?,
+            detect_result.map_err(with_mask)?,
+        );
         let reference_noise = if plan.reference == ReferenceImage::StackMean && !stack.is_empty() {
             let k = stack.len() as f64;
             NoiseModel {
@@ -255,19 +268,21 @@ impl ReferenceContext {
             &plan.fit,
             &reference_noise,
         )
-        .map_err(|e| PipelineError::Fit {
-            path: source.clone(),
-            source: e,
+        .map_err(|e| {
+            with_mask(PipelineError::Fit {
+                path: source.clone(),
+                source: e,
+            })
         })?;
         times.push("fit", sw.lap());
         if !fits.iter().any(usable) {
-            return Err(PipelineError::NoDots {
+            return Err(with_mask(PipelineError::NoDots {
                 path: source,
                 message: format!(
                     "none of the {} detected dots could be fitted",
                     detection.seeds.len()
                 ),
-            });
+            }));
         }
 
         let mut ctx = ReferenceContext {
