@@ -288,7 +288,7 @@ fn frame_figure(
             if !u_ref.iter().chain(&u_grad).any(|v| v.is_finite()) {
                 return Err(no_data(
                     "uncertainty histogram",
-                    "no u_ref or u_grad (they need a no-flow stack: input.stack_dir)",
+                    "no u_ref or u_grad (they need a no-flow stack: input.stack or input.stack_dir)",
                 ));
             }
             bf::uncertainty_histogram(&u_ref, &u_grad, title)

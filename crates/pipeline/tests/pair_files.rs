@@ -510,3 +510,56 @@ fn a_mask_that_leaves_too_little_names_itself_in_the_error() {
         "{msg}"
     );
 }
+
+#[test]
+fn a_multi_page_tiff_is_a_stack_and_gives_what_its_pages_give_as_files() {
+    let (root, cfg) = campaign("");
+    let camp = root.path().join("camp");
+    // the same three no-flow images as one multi-page file
+    let pages: Vec<Image> = (1..=3)
+        .map(|k| bostrack_io::read_image(&camp.join(format!("stack/s{k}.tif"))).unwrap())
+        .collect();
+    bostrack_io::write_tiff_stack_u16(&camp.join("stack.tif"), &pages).unwrap();
+    let file_cfg = root.path().join("file.toml");
+    fs::write(
+        &file_cfg,
+        "[input]\ndir = \"camp\"\nstack = \"stack.tif\"\nstack_dir = \"nowhere\"\n[detect]\nspacing = 8.0\n",
+    )
+    .unwrap();
+
+    let run = |cfg: &Path, out: &str| {
+        let plan = Plan::load(cfg).unwrap();
+        let ctx = ReferenceContext::prepare(&plan).unwrap();
+        assert_eq!(ctx.stack_summary().unwrap().images, 3);
+        assert_eq!(ctx.noise().1, "stack");
+        let r = process_frame(&ctx, &plan, &plan.gradients[0]).unwrap();
+        write_frame(&root.path().join(out), &r).unwrap();
+        (plan, csv_of(&root.path().join(out), "frame_1"))
+    };
+    let (plan, from_file) = run(&file_cfg, "out-file");
+    assert_eq!(plan.stack, vec![camp.join("stack.tif")]);
+    let (_, from_folder) = run(&cfg, "out-folder");
+    assert!(
+        from_file == from_folder,
+        "the stack file gives other results"
+    );
+    // u_ref_x (column 22) comes from the stack
+    assert!(
+        from_file
+            .lines()
+            .skip(1)
+            .any(|l| l.split(',').nth(22).is_some_and(|u| !u.is_empty()))
+    );
+
+    // a stack file that is missing is a configuration error naming the key
+    fs::write(
+        &file_cfg,
+        "[input]\ndir = \"camp\"\nstack = \"none.tif\"\n[detect]\nspacing = 8.0\n",
+    )
+    .unwrap();
+    let e = Plan::load(&file_cfg).unwrap_err();
+    assert!(
+        matches!(&e, ConfigError::NotFound { key, .. } if key == "input.stack"),
+        "{e:?}"
+    );
+}

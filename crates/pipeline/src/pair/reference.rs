@@ -121,11 +121,15 @@ impl ReferenceContext {
     pub fn prepare(plan: &Plan) -> Result<ReferenceContext, PipelineError> {
         let mut sw = Stopwatch::start();
         let mut times = StageTimes::default();
-        let stack = plan
+        // every page of every stack file is a no-flow image (a multi-page TIFF is a stack)
+        let stack: Vec<Image> = plan
             .stack
             .par_iter()
-            .map(|p| bostrack_io::read_image(p))
-            .collect::<Result<Vec<Image>, _>>()?;
+            .map(|p| bostrack_io::read_stack(p))
+            .collect::<Result<Vec<Vec<Image>>, _>>()?
+            .into_iter()
+            .flatten()
+            .collect();
         if !stack.is_empty() {
             times.push("stack_decode", sw.lap());
         }
@@ -307,7 +311,7 @@ impl ReferenceContext {
                 quantities.name()
             ))
         } else if stack.is_empty() {
-            Some("no no-flow stack configured ([input] stack_dir = \"\"): no u_ref, u_grad, u_d; the per-dot bounds crlb_* are still given".into())
+            Some("no no-flow stack configured ([input] stack = \"\" and stack_dir = \"\"): no u_ref, u_grad, u_d; the per-dot bounds crlb_* are still given".into())
         } else if stack.len() < MIN_STACK_IMAGES {
             Some(format!(
                 "the no-flow stack has {} image(s); a per-dot u_ref needs at least {MIN_STACK_IMAGES}",
