@@ -279,6 +279,36 @@ fn a_missing_file_exits_1_and_is_named() {
 }
 
 #[test]
+fn devices_and_unbounded_counts_are_refused_at_once() {
+    let dir = tempfile::tempdir().unwrap();
+    if Path::new("/dev/zero").exists() {
+        let o = bostrack(&["info", "/dev/zero"], dir.path());
+        assert_fails_with(
+            &o,
+            &["/dev/zero", "not a regular file (a character device)"],
+        );
+        let o = bostrack(&["check", "/dev/zero"], dir.path());
+        assert_fails_with(&o, &["/dev/zero", "not a regular file"]);
+    }
+    // usage errors (exit 2 from clap is not ours: any non-zero exit, the limit named)
+    for args in [
+        &["synth", "-o", "s", "--jobs", "100000"][..],
+        &["synth", "-o", "s", "--frames", "1000000"],
+        &["synth", "-o", "s", "--stack", "1000000"],
+        &["bench", "--realisations", "100000000"],
+    ] {
+        let o = bostrack(args, dir.path());
+        assert_ne!(code(&o), 0, "{args:?}");
+        assert!(
+            stderr(&o).contains("is more than the limit of"),
+            "{args:?}: {}",
+            stderr(&o)
+        );
+    }
+    assert!(!dir.path().join("s").exists());
+}
+
+#[test]
 fn a_partly_failed_batch_exits_2() {
     let dir = tempfile::tempdir().unwrap();
     write_test_tiff(&dir.path().join("a.tif"));

@@ -129,11 +129,14 @@ bit_flags! {
     /// quantile of the χ² distribution at the false-alarm rate `[fit] residual_false_alarm`
     /// (an unmodelled neighbour, a defect, a speck: the bound does not describe this fit).
     RESIDUAL = 15, "residual";
+    /// The dot's fitted centre (in the reference or the gradient image) lies outside the region
+    /// of interest: its pixel, the one the centre rounds to, is not kept by the mask.
+    OUTSIDE_MASK = 16, "outside_mask";
     /// The shape (σx, σy, ρ) could not be resolved in this window (an undersampled or very
     /// faint dot: the full fit was singular, left its window or was not finite); position, amplitude and background were fitted
     /// with the shape held at the image's median dot, and `crlb_x`, `crlb_y` are the bound for
     /// that known shape. The position is a measurement; `sigma_x`, `sigma_y`, `rho` are not.
-    SHAPE_FIXED = 16, "shape_fixed";
+    SHAPE_FIXED = 17, "shape_fixed";
 }
 }
 

@@ -250,6 +250,16 @@ impl Mask {
     pub fn as_slice(&self) -> &[bool] {
         &self.keep
     }
+    /// Whether the point `(x, y)` (px, pixel centres at integers) is kept: the pixel it rounds
+    /// to is kept. A point outside the image, or not finite, is not kept.
+    pub fn keeps_point(&self, x: f64, y: f64) -> bool {
+        let (cx, cy) = (x.round(), y.round());
+        // NaN fails every comparison
+        if !(cx >= 0.0 && cy >= 0.0 && cx < self.width as f64 && cy < self.height as f64) {
+            return false;
+        }
+        self.keeps(cx as usize, cy as usize)
+    }
     /// Number of kept pixels.
     pub fn count_kept(&self) -> usize {
         self.keep.iter().filter(|&&k| k).count()
@@ -284,5 +294,8 @@ mod tests {
         let m = Mask::from_fn(4, 3, |x, _| x < 2);
         assert_eq!(m.count_kept(), 6);
         assert!(m.keeps(1, 2) && !m.keeps(2, 0));
+        assert!(m.keeps_point(1.49, 2.4) && !m.keeps_point(1.5, 0.0));
+        assert!(!m.keeps_point(-0.6, 0.0) && !m.keeps_point(0.0, 2.5));
+        assert!(m.keeps_point(-0.4, 0.0) && !m.keeps_point(f64::NAN, 0.0));
     }
 }

@@ -90,6 +90,13 @@ pub struct DetectConfig {
     pub search_radius: f64,
 }
 
+/// Accepted `spacing` (px): dots closer than 2 px are not resolved, and a spacing above 1024 px
+/// leaves a handful of dots in the largest image.
+pub const SPACING_RANGE: std::ops::RangeInclusive<f64> = 2.0..=1024.0;
+
+/// Accepted `diameter` d = 4σ (px).
+pub const DIAMETER_RANGE: std::ops::RangeInclusive<f64> = 0.5..=256.0;
+
 impl Default for DetectConfig {
     fn default() -> Self {
         DetectConfig {
@@ -114,11 +121,22 @@ fn invalid(field: &'static str, problem: String) -> DetectError {
 impl DetectConfig {
     /// Check every value; the error names the offending field.
     pub fn validate(&self) -> Result<(), DetectError> {
-        for (field, v) in [("spacing", self.spacing), ("diameter", self.diameter)] {
+        // both scale the work: the number of lattice sites, the matched filter's size
+        for (field, v, range) in [
+            ("spacing", self.spacing, SPACING_RANGE),
+            ("diameter", self.diameter, DIAMETER_RANGE),
+        ] {
             if let Some(v) = v
-                && !(v.is_finite() && v > 0.0)
+                && !range.contains(&v)
             {
-                return Err(invalid(field, format!("must be finite and > 0, got {v}")));
+                return Err(invalid(
+                    field,
+                    format!(
+                        "must lie in [{}, {}] px, got {v}",
+                        range.start(),
+                        range.end()
+                    ),
+                ));
             }
         }
         if !(self.min_snr.is_finite() && self.min_snr > 0.0) {

@@ -84,7 +84,8 @@ pub struct DisplacementConfig {
 
 impl DisplacementConfig {
     /// Flags that make a displacement unusable by default: no partner, failed fit, missing or
-    /// merged dot, index disagreement, rejected by validation, a fit not converged jointly with
+    /// merged dot, index disagreement, rejected by validation, a centre outside the region of
+    /// interest (`outside_mask`), a fit not converged jointly with
     /// its neighbours (`unconverged`) or whose residual the noise model does not explain
     /// (`residual`): for those two the bound, and so `u_d`, does not describe the error.
     /// (Border, mask, saturation, faintness, defects, a shape at its bound and a neighbour
@@ -98,6 +99,7 @@ impl DisplacementConfig {
             | DotFlags::MERGED.bits()
             | DotFlags::GRID_MISMATCH.bits()
             | DotFlags::OUTLIER.bits()
+            | DotFlags::OUTSIDE_MASK.bits()
             | DotFlags::UNCONVERGED.bits()
             | DotFlags::RESIDUAL.bits(),
     );

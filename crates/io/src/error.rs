@@ -30,6 +30,10 @@ pub enum IoErrorKind {
     /// Any other operating-system error (permissions, a folder instead of a file, disk full).
     #[error("{0}")]
     Io(#[source] std::io::Error),
+    /// Not a regular file: a folder, a FIFO (reading it could block forever), a device such as
+    /// `/dev/zero` (endless), a socket. Checked before the file is opened.
+    #[error("not a regular file ({0}); images are read from regular files only")]
+    NotRegularFile(&'static str),
     /// The content is neither TIFF nor PNG (files are recognised by their first bytes).
     #[error("not a TIFF or PNG file (it starts with {0})")]
     UnknownFormat(String),
@@ -61,6 +65,19 @@ pub enum IoErrorKind {
     /// [`read_image`](crate::read_image) or a mask reader met a file with several pages.
     #[error("file has {pages} pages where a single image is expected (read it as a stack)")]
     MultiPage { pages: usize },
+    /// Every page of a multi-page file together holds more pixels than a stack may hold
+    /// (`limit`, 2^30 pixels: 8 GiB of f64 samples).
+    #[error(
+        "the pages hold more than {limit} pixels together (page {page} reaches {pixels}); this reader's limit for a stack"
+    )]
+    StackTooLarge {
+        page: usize,
+        pixels: u64,
+        limit: u64,
+    },
+    /// A mask that keeps no pixel, or that has no finite sample.
+    #[error("mask keeps no pixel: {0}")]
+    EmptyMask(String),
     /// A mask whose size is not the image's.
     #[error("mask is {found_width} x {found_height} pixels but the image is {width} x {height}")]
     SizeMismatch {

@@ -12,6 +12,7 @@
 //! | TIFF layout | little or big endian, strips or tiles, multi-page ([`read_stack`]), BigTIFF |
 //! | photometric | BlackIsZero; WhiteIsZero inverted on reading (`max - raw`, `1.0 - raw` for float) |
 //! | PNG | grayscale 8 or 16 bit (1/2/4-bit grayscale expanded to 8 bit) |
+//! | masks ([`read_mask`]) | any of the above; kept = displays brighter than the midpoint of the mask's darkest and brightest samples ({0, 1}, {0, 255}, {0, 65535} alike) |
 //! | writing | TIFF u16 and f32 (uncompressed, little-endian), PNG u8 and u16; atomic (temp file + rename) |
 //!
 //! 8/16/32-bit and float TIFF samples are decoded by the `tiff` crate. Neither it nor `image`
@@ -19,6 +20,14 @@
 //! decoder, reads the chunks itself, undoes PackBits/LZW/Deflate and unpacks two pixels from
 //! three bytes, MSB first whatever the byte order (TIFF 6.0, FillOrder 1). Unsupported: FillOrder
 //! 2, a predictor on 12-bit data, colour, signed integers, and bit depths other than the above.
+//!
+//! **Bounded reading.** Only regular files are read (a folder, a FIFO, which would block, or a
+//! device such as `/dev/zero`, which never ends, is refused before it is opened:
+//! [`IoErrorKind::NotRegularFile`]), and of a file only the bytes its image structure points to:
+//! the headers, the directories and each page's strips or tiles, a chunk no further than its data
+//! can need. Trailing or unreferenced bytes are never read, so a 256 x 256 TIFF padded to 3 GB
+//! reads in a few MiB. An image or tile holds at most 2^28 pixels, a stack's pages at most 2^30
+//! together.
 //!
 //! Every failure is an [`IoError`] naming the file and the reason; nothing panics on bad input.
 //!

@@ -5,15 +5,15 @@ use crate::tiff_read::MAX_PIXELS;
 use bostrack_core::{ImageMeta, Photometric, SampleFormat};
 use image::codecs::png::PngDecoder;
 use image::{ColorType, DynamicImage, ExtendedColorType, ImageDecoder, ImageError};
-use std::io::Cursor;
+use std::io::{BufRead, Seek};
 
 /// Header facts of a PNG file: (width, height, bits per decoded sample).
-pub(crate) fn png_header(bytes: &[u8]) -> Result<(usize, usize, u16), IoErrorKind> {
-    let dec = PngDecoder::new(Cursor::new(bytes)).map_err(from_image)?;
+pub(crate) fn png_header<R: BufRead + Seek>(r: R) -> Result<(usize, usize, u16), IoErrorKind> {
+    let dec = PngDecoder::new(r).map_err(from_image)?;
     header_of(&dec)
 }
 
-fn header_of(dec: &PngDecoder<Cursor<&[u8]>>) -> Result<(usize, usize, u16), IoErrorKind> {
+fn header_of<R: BufRead + Seek>(dec: &PngDecoder<R>) -> Result<(usize, usize, u16), IoErrorKind> {
     let (w, h) = dec.dimensions();
     if w == 0 || h == 0 {
         return Err(IoErrorKind::ZeroSize {
@@ -42,9 +42,13 @@ fn header_of(dec: &PngDecoder<Cursor<&[u8]>>) -> Result<(usize, usize, u16), IoE
     Ok((w as usize, h as usize, bits))
 }
 
-/// Decodes a grayscale PNG: (width, height, samples, metadata without source path).
-pub(crate) fn read_png(bytes: &[u8]) -> Result<(usize, usize, Vec<f64>, ImageMeta), IoErrorKind> {
-    let dec = PngDecoder::new(Cursor::new(bytes)).map_err(from_image)?;
+/// Decodes a grayscale PNG: (width, height, samples, metadata without source path). The stream
+/// is read up to the end of the image data only.
+#[allow(clippy::type_complexity)]
+pub(crate) fn read_png<R: BufRead + Seek>(
+    r: R,
+) -> Result<(usize, usize, Vec<f64>, ImageMeta), IoErrorKind> {
+    let dec = PngDecoder::new(r).map_err(from_image)?;
     let (w, h, bits) = header_of(&dec)?;
     let data: Vec<f64> = match DynamicImage::from_decoder(dec).map_err(from_image)? {
         DynamicImage::ImageLuma8(b) => b.into_raw().into_iter().map(f64::from).collect(),

@@ -6,12 +6,63 @@ use crate::info::ImageInfo;
 use crate::png_read::{png_header, read_png};
 use crate::tiff_read::{Chunks, PageHeader, TiffFile};
 use bostrack_core::{Image, ImageMeta, Mask, Photometric, SampleFormat};
+use std::fs::{File, FileType};
+use std::io::{BufReader, Read, Seek};
 use std::path::Path;
 
-fn load(path: &Path) -> Result<(Vec<u8>, FileFormat), IoError> {
-    let bytes = std::fs::read(path).map_err(|e| IoError::new(path, IoErrorKind::from_io(e)))?;
-    let format = detect(&bytes).map_err(|k| IoError::new(path, k))?;
-    Ok((bytes, format))
+/// Most pixels [`read_stack`] reads from one file, all pages together: 2^30 (8 GiB of f64
+/// samples). A few kilobytes of compressed data can claim that much, so it is checked before
+/// each page is decoded.
+pub(crate) const MAX_STACK_PIXELS: u64 = 1 << 30;
+
+/// An image file opened for reading: a buffered reader at its start, its length, its format.
+struct Opened {
+    reader: BufReader<File>,
+    len: u64,
+    format: FileFormat,
+}
+
+/// What a file that is not a regular file is, for the error message.
+fn kind_of(t: FileType) -> &'static str {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::FileTypeExt;
+        if t.is_fifo() {
+            return "a FIFO (named pipe)";
+        }
+        if t.is_char_device() {
+            return "a character device";
+        }
+        if t.is_block_device() {
+            return "a block device";
+        }
+        if t.is_socket() {
+            return "a socket";
+        }
+    }
+    if t.is_dir() { "a folder" } else { "not a file" }
+}
+
+/// Opens an image file after checking that it is a regular file (a FIFO would block, a device
+/// such as `/dev/zero` never ends), and recognises its format from its first bytes. Nothing
+/// else is read: the readers then read only what the image structure needs.
+fn open(path: &Path) -> Result<Opened, IoError> {
+    let err = |k| IoError::new(path, k);
+    let io = |e| err(IoErrorKind::from_io(e));
+    let meta = std::fs::metadata(path).map_err(io)?;
+    if !meta.is_file() {
+        return Err(err(IoErrorKind::NotRegularFile(kind_of(meta.file_type()))));
+    }
+    let mut reader = BufReader::new(File::open(path).map_err(io)?);
+    let mut head = Vec::with_capacity(8);
+    reader.by_ref().take(8).read_to_end(&mut head).map_err(io)?;
+    let format = detect(&head).map_err(err)?;
+    reader.rewind().map_err(io)?;
+    Ok(Opened {
+        reader,
+        len: meta.len(),
+        format,
+    })
 }
 
 fn meta_of(h: &PageHeader, path: &Path, page: usize) -> ImageMeta {
@@ -29,7 +80,7 @@ fn meta_of(h: &PageHeader, path: &Path, page: usize) -> ImageMeta {
     }
 }
 
-fn current_page(tif: &mut TiffFile<'_>, path: &Path) -> Result<Image, IoErrorKind> {
+fn current_page<R: Read + Seek>(tif: &mut TiffFile<R>, path: &Path) -> Result<Image, IoErrorKind> {
     let h = tif.header()?;
     let data = tif.decode(&h)?;
     let meta = meta_of(&h, path, tif.page());
@@ -43,17 +94,20 @@ fn current_page(tif: &mut TiffFile<'_>, path: &Path) -> Result<Image, IoErrorKin
 /// unsigned or 32, 64-bit float single-channel samples, uncompressed, PackBits, LZW or Deflate
 /// (12-bit too), either byte order, strips or tiles, BlackIsZero or WhiteIsZero; grayscale PNG of
 /// 8 or 16 bits. A multi-page TIFF is an error ([`IoErrorKind::MultiPage`]); use [`read_stack`].
+///
+/// Only regular files are read ([`IoErrorKind::NotRegularFile`] otherwise), and of those only
+/// the bytes the image structure points to: trailing or unreferenced data are never read.
 pub fn read_image(path: &Path) -> Result<Image, IoError> {
-    let (bytes, format) = load(path)?;
+    let f = open(path)?;
     let err = |k| IoError::new(path, k);
-    match format {
+    match f.format {
         FileFormat::Png => {
-            let (w, h, data, mut meta) = read_png(&bytes).map_err(err)?;
+            let (w, h, data, mut meta) = read_png(f.reader).map_err(err)?;
             meta.source = Some(path.to_path_buf());
             Image::new(w, h, data, meta).map_err(|e| err(IoErrorKind::Corrupt(e.to_string())))
         }
         FileFormat::Tiff => {
-            let mut tif = TiffFile::open(&bytes).map_err(err)?;
+            let mut tif = TiffFile::open(f.reader, f.len).map_err(err)?;
             if tif.has_more_pages() {
                 let pages = tif.count_remaining_pages();
                 return Err(err(IoErrorKind::MultiPage { pages }));
@@ -65,30 +119,67 @@ pub fn read_image(path: &Path) -> Result<Image, IoError> {
 
 /// Reads every page of a file, in order (a PNG or single-page TIFF gives one image).
 ///
-/// Pages may differ in size and sample type; each image's `meta.page` is its index.
+/// Pages may differ in size and sample type; each image's `meta.page` is its index. All pages
+/// together may hold at most 2^30 pixels ([`IoErrorKind::StackTooLarge`], checked from each
+/// page's header before it is decoded).
 pub fn read_stack(path: &Path) -> Result<Vec<Image>, IoError> {
-    let (bytes, format) = load(path)?;
+    let f = open(path)?;
     let err = |k| IoError::new(path, k);
-    if format == FileFormat::Png {
+    if f.format == FileFormat::Png {
         return read_image(path).map(|img| vec![img]);
     }
-    let mut tif = TiffFile::open(&bytes).map_err(err)?;
-    let mut out = vec![current_page(&mut tif, path).map_err(err)?];
-    while tif.next_page().map_err(err)? {
+    let mut tif = TiffFile::open(f.reader, f.len).map_err(err)?;
+    let mut out = Vec::new();
+    let mut pixels = 0u64;
+    loop {
+        let h = tif.header().map_err(err)?;
+        pixels += (h.width * h.height) as u64;
+        if pixels > MAX_STACK_PIXELS {
+            return Err(err(IoErrorKind::StackTooLarge {
+                page: tif.page(),
+                pixels,
+                limit: MAX_STACK_PIXELS,
+            }));
+        }
         out.push(current_page(&mut tif, path).map_err(err)?);
+        if !tif.next_page().map_err(err)? {
+            return Ok(out);
+        }
     }
-    Ok(out)
 }
 
-/// Reads a region-of-interest mask: a pixel is kept when it **displays white**, i.e. its
-/// sample (after the photometric inversion of WhiteIsZero files) is above half the maximum:
-/// `v > saturation / 2` for integer files, `v > 0.5` for float files.
+/// Reads a region-of-interest mask. **A pixel is kept when it displays brighter than the
+/// midpoint between the mask's darkest and brightest samples** (samples after the photometric
+/// inversion of WhiteIsZero files, so "displays" is as a viewer shows the file). The rule
+/// depends on no bit depth or maximum: {0, 1} (a numpy or MATLAB logical), {0, 255},
+/// {0, 65535}, 8 or 16-bit, TIFF or PNG, integer or float, all keep their non-zero pixels
+/// (BlackIsZero) or their zero pixels (WhiteIsZero). A mask of a single value keeps every
+/// pixel if that value displays brighter than black, and is an error if it is black
+/// ([`IoErrorKind::EmptyMask`]); non-finite samples are not kept. Every error names the mask
+/// file.
 pub fn read_mask(path: &Path) -> Result<Mask, IoError> {
     let img = read_image(path)?;
-    let threshold = img.meta.saturation.map_or(0.5, |s| s / 2.0);
-    let keep = img.data().iter().map(|&v| v > threshold).collect();
-    Mask::new(img.width(), img.height(), keep)
-        .map_err(|e| IoError::new(path, IoErrorKind::Corrupt(e.to_string())))
+    mask_of(&img).map_err(|k| IoError::new(path, k))
+}
+
+/// The mask rule of [`read_mask`] applied to a decoded image.
+fn mask_of(img: &Image) -> Result<Mask, IoErrorKind> {
+    let (lo, hi, _) = img
+        .stats()
+        .ok_or_else(|| IoErrorKind::EmptyMask("no sample is finite".into()))?;
+    // samples are larger = brighter after the WhiteIsZero inversion: 0 displays black
+    let keep: Vec<bool> = if lo == hi {
+        if hi <= 0.0 {
+            return Err(IoErrorKind::EmptyMask(format!(
+                "every sample displays black (value {hi})"
+            )));
+        }
+        img.data().iter().map(|v| v.is_finite()).collect()
+    } else {
+        let mid = 0.5 * (lo + hi);
+        img.data().iter().map(|&v| v > mid).collect()
+    };
+    Mask::new(img.width(), img.height(), keep).map_err(|e| IoErrorKind::Corrupt(e.to_string()))
 }
 
 /// [`read_mask`], with an error ([`IoErrorKind::SizeMismatch`]) when the mask is not
@@ -115,11 +206,12 @@ pub fn read_mask_for(path: &Path, width: usize, height: usize) -> Result<Mask, I
 /// (unsupported compression, bit depth, colour, truncated chunks), so a successful probe
 /// means the file's headers are readable; a page's compressed data is only checked on reading.
 pub fn probe(path: &Path) -> Result<ImageInfo, IoError> {
-    let (bytes, format) = load(path)?;
+    let f = open(path)?;
     let err = |k| IoError::new(path, k);
+    let format = f.format;
     match format {
         FileFormat::Png => {
-            let (width, height, bits) = png_header(&bytes).map_err(err)?;
+            let (width, height, bits) = png_header(f.reader).map_err(err)?;
             Ok(ImageInfo {
                 path: path.to_path_buf(),
                 format,
@@ -135,7 +227,7 @@ pub fn probe(path: &Path) -> Result<ImageInfo, IoError> {
             })
         }
         FileFormat::Tiff => {
-            let mut tif = TiffFile::open(&bytes).map_err(err)?;
+            let mut tif = TiffFile::open(f.reader, f.len).map_err(err)?;
             let h = tif.header().map_err(err)?;
             let endianness = tif.byte_order();
             let mut pages = 1;

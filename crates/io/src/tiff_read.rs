@@ -1,11 +1,16 @@
 //! TIFF pages: tags through the `tiff` decoder, samples through it too except for 12-bit data,
 //! whose strips or tiles are read, decompressed and unpacked here.
+//!
+//! The file is read through a seekable reader, never whole: only the headers, the directories
+//! and the strips or tiles a page points to are read (the `tiff` decoder streams each chunk
+//! through `Read::take` of its byte count; the 12-bit path reads at most what the page needs,
+//! [`chunk_read_limit`]), so bytes past the image structure cost nothing.
 
 use crate::decompress::{inflate, unlzw, unpack12_row, unpackbits};
 use crate::error::IoErrorKind;
 use crate::format::{ByteOrder, compression_name, photometric_name};
 use bostrack_core::{Photometric, SampleFormat};
-use std::io::Cursor;
+use std::io::{Read, Seek, SeekFrom};
 use tiff::decoder::{Decoder, DecodingResult, Limits};
 use tiff::tags::Tag;
 
@@ -34,25 +39,23 @@ pub(crate) struct PageHeader {
     counts: Vec<u64>,
 }
 
-/// An open TIFF file held in memory; one page is current at a time.
-pub(crate) struct TiffFile<'a> {
-    bytes: &'a [u8],
-    dec: Decoder<Cursor<&'a [u8]>>,
+/// An open TIFF file read through `R`; one page is current at a time.
+pub(crate) struct TiffFile<R: Read + Seek> {
+    /// Length of the file in bytes (chunks must lie inside it).
+    len: u64,
+    dec: Decoder<R>,
     page: usize,
 }
 
-impl<'a> TiffFile<'a> {
-    pub(crate) fn open(bytes: &'a [u8]) -> Result<Self, IoErrorKind> {
+impl<R: Read + Seek> TiffFile<R> {
+    /// Opens a TIFF file of `len` bytes read through `reader` (positioned anywhere).
+    pub(crate) fn open(reader: R, len: u64) -> Result<Self, IoErrorKind> {
         let mut limits = Limits::default();
         limits.decoding_buffer_size = (MAX_PIXELS * 8) as usize;
-        let dec = Decoder::new(Cursor::new(bytes))
+        let dec = Decoder::new(reader)
             .map_err(IoErrorKind::from_tiff)?
             .with_limits(limits);
-        Ok(TiffFile {
-            bytes,
-            dec,
-            page: 0,
-        })
+        Ok(TiffFile { len, dec, page: 0 })
     }
 
     pub(crate) fn byte_order(&self) -> ByteOrder {
@@ -240,7 +243,7 @@ impl<'a> TiffFile<'a> {
                 counts.len()
             )));
         }
-        let len = self.bytes.len() as u64;
+        let len = self.len;
         for (i, (&o, &c)) in offsets.iter().zip(&counts).enumerate() {
             let end = o.saturating_add(c);
             if end > len {
@@ -267,7 +270,7 @@ impl<'a> TiffFile<'a> {
     /// exactly once: by the `tiff` crate for 8/16/32-bit and float data, here for 12-bit data).
     pub(crate) fn decode(&mut self, h: &PageHeader) -> Result<Vec<f64>, IoErrorKind> {
         let data = if h.bits == 12 {
-            decode12(self.bytes, h)
+            decode12(self.dec.inner(), h)
         } else {
             self.decode_with_tiff_crate(h)
         };
@@ -314,8 +317,21 @@ fn in_page(page: usize, e: IoErrorKind) -> IoErrorKind {
     }
 }
 
+/// The most bytes read from a chunk whose decoded data are `need` bytes: `need` for
+/// uncompressed data, `2 need + 4096` for compressed data (PackBits grows data by at most 1/128,
+/// LZW with 12-bit codes by at most 1/2, Deflate by a few bytes per 16 KiB block), so a byte
+/// count that claims more than the data can need does not make the reader read it.
+pub(crate) fn chunk_read_limit(compression: u16, need: usize) -> u64 {
+    let need = need as u64;
+    if compression == 1 {
+        need
+    } else {
+        2 * need + 4096
+    }
+}
+
 /// Reads, decompresses and unpacks the 12-bit strips or tiles of one page.
-fn decode12(bytes: &[u8], h: &PageHeader) -> Result<Vec<f64>, IoErrorKind> {
+fn decode12<R: Read + Seek>(r: &mut R, h: &PageHeader) -> Result<Vec<f64>, IoErrorKind> {
     let (cw, ch, what) = match h.chunks {
         Chunks::Strips { rows_per_strip } => (h.width, rows_per_strip, "strip"),
         Chunks::Tiles { width, height } => (width, height, "tile"),
@@ -331,12 +347,26 @@ fn decode12(bytes: &[u8], h: &PageHeader) -> Result<Vec<f64>, IoErrorKind> {
     }
     let mut out = vec![0.0; h.width * h.height];
     let mut scratch = Vec::new();
+    let mut raw = Vec::new();
     for (i, (&off, &cnt)) in h.offsets.iter().zip(&h.counts).take(expected).enumerate() {
         let (x0, y0) = ((i % across) * cw, (i / across) * ch);
         let (cols, rows) = (cw.min(h.width - x0), ch.min(h.height - y0));
         let need = row_bytes * rows;
-        // bounds were checked in `header`
-        let src = &bytes[off as usize..(off + cnt) as usize];
+        // the chunk lies inside the file (checked in `header`); read no more than it can need
+        let take = cnt.min(chunk_read_limit(h.compression, need));
+        raw.clear();
+        r.seek(SeekFrom::Start(off)).map_err(IoErrorKind::from_io)?;
+        r.by_ref()
+            .take(take)
+            .read_to_end(&mut raw)
+            .map_err(IoErrorKind::from_io)?;
+        if (raw.len() as u64) < take {
+            return Err(IoErrorKind::Truncated(format!(
+                "{what} {i} ends after {} of its {take} bytes",
+                raw.len()
+            )));
+        }
+        let src = &raw[..];
         let data: &[u8] = match h.compression {
             1 => src.get(..need).ok_or_else(|| {
                 IoErrorKind::Truncated(format!(

@@ -359,7 +359,7 @@ pub fn run_batch(
 
     let ctx = if n_compute > 0 {
         progress.phase(&format!(
-            "preparing the reference side: detection and fits in {} and {} no-flow images",
+            "preparing the reference side: detection and fits in {} and the no-flow stack ({} file(s))",
             match &plan.reference {
                 ReferenceImage::File(p) => p
                     .file_name()

@@ -60,6 +60,9 @@ pub struct InputConfig {
     pub reference_from: ReferenceFrom,
     /// Reference image file (used when `reference_from = "file"`).
     pub reference: PathBuf,
+    /// The no-flow stack as one multi-page TIFF file (many cameras write one); empty to read
+    /// the stack from `stack_dir`. When set, `stack_dir` and `stack_glob` are not used.
+    pub stack: PathBuf,
     /// Folder of the no-flow stack; empty for none.
     pub stack_dir: PathBuf,
     /// File-name pattern of the stack images.
@@ -78,6 +81,7 @@ impl Default for InputConfig {
             dir: PathBuf::from("."),
             reference_from: ReferenceFrom::File,
             reference: PathBuf::from("reference.tif"),
+            stack: PathBuf::new(),
             stack_dir: PathBuf::from("stack"),
             stack_glob: "*.tif".into(),
             gradient_dir: PathBuf::from("gradient"),

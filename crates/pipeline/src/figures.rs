@@ -151,11 +151,7 @@ impl FigureSetup {
         if !(x.is_finite() && y.is_finite()) {
             return true;
         }
-        let (cx, cy) = (x.round(), y.round());
-        if cx < 0.0 || cy < 0.0 || cx >= m.width() as f64 || cy >= m.height() as f64 {
-            return false;
-        }
-        m.keeps(cx as usize, cy as usize)
+        m.keeps_point(x, y)
     }
 
     fn map_frame<'a>(&'a self, title: &'a str) -> bf::MapFrame<'a> {
@@ -292,7 +288,7 @@ fn frame_figure(
             if !u_ref.iter().chain(&u_grad).any(|v| v.is_finite()) {
                 return Err(no_data(
                     "uncertainty histogram",
-                    "no u_ref or u_grad (they need a no-flow stack: input.stack_dir)",
+                    "no u_ref or u_grad (they need a no-flow stack: input.stack or input.stack_dir)",
                 ));
             }
             bf::uncertainty_histogram(&u_ref, &u_grad, title)

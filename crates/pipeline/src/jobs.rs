@@ -9,6 +9,10 @@ pub fn available_jobs() -> usize {
         .unwrap_or(1)
 }
 
+/// Most worker threads a run (`[run] jobs`, `--jobs`) may ask for: each thread is a stack of
+/// memory, and no machine this runs on has more cores.
+pub const MAX_JOBS: usize = 1024;
+
 /// `requested` threads, or [`available_jobs`] when `requested` is 0 ("all available").
 pub fn resolve_jobs(requested: usize) -> usize {
     if requested == 0 {

@@ -57,8 +57,10 @@ pub use config::{
 };
 pub use error::{ConfigError, PipelineError};
 pub use files::{glob_match, list_matching, natural_cmp};
-pub use jobs::{available_jobs, resolve_jobs};
-pub use load::{load_config, load_toml, parse_config, parse_toml};
+pub use jobs::{MAX_JOBS, available_jobs, resolve_jobs};
+pub use load::{
+    MAX_CONFIG_BYTES, load_config, load_toml, parse_config, parse_toml, read_config_text,
+};
 pub use pair::{
     FrameCounts, FrameMedians, FrameResult, FrameSummary, NoiseSummary, ReferenceContext,
     StackSummary, StageTimes, frame_is_complete, process_frame, process_image, write_frame,

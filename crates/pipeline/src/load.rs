@@ -20,11 +20,38 @@ pub fn parse_config(text: &str, path: &Path) -> Result<PipelineConfig, ConfigErr
 /// Reads any TOML file into `T` with the errors of [`load_config`] (file, line, unknown key with
 /// a suggestion); for the stage crates' own files, e.g. a synthetic scene.
 pub fn load_toml<T: DeserializeOwned>(path: &Path) -> Result<T, ConfigError> {
-    let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+    let text = read_config_text(path)?;
+    parse_toml(&text, path)
+}
+
+/// Largest configuration file read, 1 MiB (a `pipeline.toml` is a few KiB).
+pub const MAX_CONFIG_BYTES: u64 = 1 << 20;
+
+/// Reads a configuration file as text, in bounded time and memory: only a regular file (a FIFO
+/// would block, `/dev/zero` never ends) of at most [`MAX_CONFIG_BYTES`].
+pub fn read_config_text(path: &Path) -> Result<String, ConfigError> {
+    use std::io::Read;
+    let err = |source| ConfigError::Read {
         path: path.to_path_buf(),
         source,
-    })?;
-    parse_toml(&text, path)
+    };
+    let other = |m: &str| err(std::io::Error::new(std::io::ErrorKind::InvalidInput, m));
+    let meta = std::fs::metadata(path).map_err(err)?;
+    if !meta.is_file() {
+        return Err(other("not a regular file"));
+    }
+    let mut text = String::new();
+    std::fs::File::open(path)
+        .map_err(err)?
+        .take(MAX_CONFIG_BYTES + 1)
+        .read_to_string(&mut text)
+        .map_err(err)?;
+    if text.len() as u64 > MAX_CONFIG_BYTES {
+        return Err(other(
+            "larger than 1 MiB, the limit for a configuration file (a few KiB)",
+        ));
+    }
+    Ok(text)
 }
 
 /// Parses TOML text into `T`; `path` is only used to name the file in errors.
@@ -260,6 +287,23 @@ mod tests {
         }
         let e = err("[match\n");
         assert!(matches!(e, ConfigError::Parse { line: 1, .. }), "{e:?}");
+    }
+
+    #[test]
+    fn only_small_regular_files_are_read() {
+        let dir = tempfile::tempdir().unwrap();
+        let e = load_config(dir.path()).unwrap_err().to_string();
+        assert!(e.ends_with(": not a regular file"), "{e}");
+        if Path::new("/dev/zero").exists() {
+            let e = load_config(Path::new("/dev/zero")).unwrap_err().to_string();
+            assert_eq!(e, "cannot read /dev/zero: not a regular file");
+        }
+        let big = dir.path().join("big.toml");
+        std::fs::write(&big, "#".repeat(MAX_CONFIG_BYTES as usize + 1)).unwrap();
+        let e = load_config(&big).unwrap_err().to_string();
+        assert!(e.contains("larger than 1 MiB"), "{e}");
+        std::fs::write(&big, "#".repeat(MAX_CONFIG_BYTES as usize)).unwrap();
+        assert_eq!(load_config(&big).unwrap(), PipelineConfig::default());
     }
 
     #[test]

@@ -6,7 +6,7 @@ use crate::config::{
 };
 use crate::error::ConfigError;
 use crate::files::list_matching;
-use crate::jobs::resolve_jobs;
+use crate::jobs::{MAX_JOBS, resolve_jobs};
 use crate::load::load_config;
 use crate::suggest::did_you_mean;
 use bostrack_core::DotFlags;
@@ -42,7 +42,9 @@ pub struct Plan {
     /// The configuration as parsed (for the run record).
     pub config: PipelineConfig,
     pub reference: ReferenceImage,
-    /// No-flow stack images (natural order); empty when `input.stack_dir = ""`.
+    /// No-flow stack files (natural order): the files of `input.stack_dir`, or the one
+    /// multi-page file `input.stack`; every page of every file is a stack image. Empty when
+    /// `input.stack = ""` and `input.stack_dir = ""`.
     pub stack: Vec<PathBuf>,
     /// Gradient images (natural order; at least one).
     pub gradients: Vec<PathBuf>,
@@ -77,7 +79,11 @@ impl Plan {
         let input_dir = base.join(&cfg.input.dir);
         v.require_dir("input.dir", &input_dir)?;
 
-        let stack = if cfg.input.stack_dir.as_os_str().is_empty() {
+        let stack = if !cfg.input.stack.as_os_str().is_empty() {
+            let p = input_dir.join(&cfg.input.stack);
+            v.require_file("input.stack", &p)?;
+            vec![p]
+        } else if cfg.input.stack_dir.as_os_str().is_empty() {
             Vec::new()
         } else {
             v.list(
@@ -87,6 +93,15 @@ impl Plan {
                 &cfg.input.stack_glob,
             )?
         };
+        if stack.len() > MAX_STACK_FILES {
+            return Err(v.invalid(
+                "input.stack_glob",
+                format!(
+                    "matches {} files; a stack may have at most {MAX_STACK_FILES}",
+                    stack.len()
+                ),
+            ));
+        }
         let gradients = v.list(
             "input.gradient_dir",
             "input.gradient_glob",
@@ -104,7 +119,7 @@ impl Plan {
                 if stack.is_empty() {
                     return Err(v.invalid(
                         "input.reference_from",
-                        "\"stack-mean\" needs a no-flow stack (input.stack_dir is \"\")",
+                        "\"stack-mean\" needs a no-flow stack (input.stack and input.stack_dir are \"\")",
                     ));
                 }
                 ReferenceImage::StackMean
@@ -113,7 +128,7 @@ impl Plan {
         if cfg.uncertainty.reference_position == ReferencePosition::StackMean && stack.is_empty() {
             return Err(v.invalid(
                 "uncertainty.reference_position",
-                "\"stack-mean\" needs a no-flow stack (input.stack_dir is \"\"); use \"image\"",
+                "\"stack-mean\" needs a no-flow stack (input.stack and input.stack_dir are \"\"); use \"image\"",
             ));
         }
 
@@ -150,6 +165,13 @@ impl Plan {
     }
 }
 
+/// Most no-flow stack files a plan accepts (every stack image is held in memory).
+pub const MAX_STACK_FILES: usize = 1000;
+
+/// Most iterations per fit `[fit] max_iterations` may ask for (the default is 50; a fit that
+/// has not converged in a few hundred Levenberg-Marquardt steps does not converge).
+pub const MAX_FIT_ITERATIONS: u32 = 1000;
+
 struct Validator<'a> {
     file: &'a Path,
 }
@@ -184,6 +206,26 @@ impl Validator<'_> {
         cfg.fit
             .validate()
             .map_err(|e| self.invalid("fit", e.to_string()))?;
+        // every value that scales the work is bounded (the other [fit] bounds are in
+        // FitConfig::validate)
+        if cfg.fit.max_iterations > MAX_FIT_ITERATIONS {
+            return Err(self.invalid(
+                "fit.max_iterations",
+                format!(
+                    "must be 1 to {MAX_FIT_ITERATIONS}, got {}",
+                    cfg.fit.max_iterations
+                ),
+            ));
+        }
+        if cfg.run.jobs > MAX_JOBS {
+            return Err(self.invalid(
+                "run.jobs",
+                format!(
+                    "must be 0 (every available CPU) to {MAX_JOBS}, got {}",
+                    cfg.run.jobs
+                ),
+            ));
+        }
         if cfg.uncertainty.ar_variant == ArVariant::Bounds
             && !cfg.fit.bound
             && cfg.output.quantities >= Quantities::Amplification
@@ -394,6 +436,65 @@ mod tests {
         assert_eq!(p.output.dir, root.path().join("cfg/out"));
         assert_eq!(p.jobs, 3);
         assert_eq!(p.matching, MatchConfig::default());
+    }
+
+    #[test]
+    fn every_value_that_scales_the_work_is_bounded() {
+        let root = campaign();
+        for (text, key, says) in [
+            (
+                "[fit]\nmax_iterations = 1001\n",
+                "fit.max_iterations",
+                "1 to 1000",
+            ),
+            ("[fit]\nneighbour_passes = 1000000\n", "fit", "1..=100"),
+            (
+                "[run]\njobs = 5000\n",
+                "run.jobs",
+                "0 (every available CPU) to 1024",
+            ),
+            (
+                "[detect]\nspacing = 0.001\n",
+                "detect.spacing",
+                "[2, 1024] px",
+            ),
+            (
+                "[detect]\ndiameter = 1e9\n",
+                "detect.diameter",
+                "[0.5, 256] px",
+            ),
+            (
+                "[detect]\nwindow_half_width = 100000\n",
+                "detect.window_half_width",
+                "1 to 256",
+            ),
+        ] {
+            let e = plan(root.path(), &format!("{BASE}{text}")).unwrap_err();
+            match &e {
+                ConfigError::Invalid {
+                    key: k, message, ..
+                } => {
+                    assert_eq!(k, key, "{e}");
+                    assert!(message.contains(says), "{e}");
+                }
+                other => panic!("{text}: {other:?}"),
+            }
+        }
+        // the limits themselves are accepted
+        let ok = "[fit]\nmax_iterations = 1000\n[run]\njobs = 1024\n[detect]\nspacing = 1024.0\n";
+        assert!(plan(root.path(), &format!("{BASE}{ok}")).is_ok());
+        // a stack folder of more than MAX_STACK_FILES files
+        let many = root.path().join("camp/many");
+        fs::create_dir_all(&many).unwrap();
+        for k in 0..=MAX_STACK_FILES {
+            fs::write(many.join(format!("s{k}.tif")), b"x").unwrap();
+        }
+        let e = plan(root.path(), &format!("{BASE}stack_dir = \"many\"\n")).unwrap_err();
+        assert!(
+            e.to_string()
+                .contains("matches 1001 files; a stack may have at most 1000"),
+            "{e}"
+        );
     }
 
     #[test]

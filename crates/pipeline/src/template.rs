@@ -62,6 +62,12 @@ pub(crate) const SECTIONS: &[SectionDoc] = &[
                 "Reference image file (read when reference_from = \"file\").",
             ),
             key(
+                "stack",
+                "The no-flow stack as one multi-page TIFF file (one page per image, as many cameras\n\
+                 write it); \"\" to read the stack from stack_dir. When set, stack_dir and\n\
+                 stack_glob are not used.",
+            ),
+            key(
                 "stack_dir",
                 "Folder of the no-flow stack: further images without flow, for the per-dot\n\
                  position noise. \"\" for none.",
@@ -81,7 +87,8 @@ pub(crate) const SECTIONS: &[SectionDoc] = &[
             ),
             key(
                 "mask",
-                "Region-of-interest mask image (white = keep, whatever its photometric tag);\n\
+                "Region-of-interest mask image: pixels displaying brighter than the midpoint of its\n\
+                 darkest and brightest values are kept ({0,1}, {0,255}, {0,65535}, any photometric tag);\n\
                  \"\" for the whole image.",
             ),
         ],

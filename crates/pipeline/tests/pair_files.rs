@@ -1,7 +1,7 @@
 //! The pair pipeline over files: a small synthetic campaign on disk, its outputs, determinism,
 //! "compute only what is asked for", and bad inputs (each a clear error, nothing written).
 
-use bostrack_core::{Image, ImageMeta};
+use bostrack_core::{DotFlags, Image, ImageMeta};
 use bostrack_displacement::COLUMNS;
 use bostrack_pipeline::{
     ConfigError, PipelineError, Plan, ReferenceContext, frame_is_complete, process_frame,
@@ -421,4 +421,145 @@ fn a_displacement_larger_than_half_the_spacing_is_followed() {
     assert!(worst < 0.5, "largest error {worst} px");
     assert_eq!(flagged, c.grid_mismatches);
     assert!(flagged < 150, "{flagged} flagged");
+}
+
+/// `camp/mask.png` keeping `keep(x, y)`, stored as a numpy/MATLAB logical would be: 0 and 1.
+fn write_logical_mask(root: &Path, keep: impl Fn(usize, usize) -> bool) -> PathBuf {
+    let sc = scene();
+    let mut img = Image::from_fn(sc.width, sc.height, |x, y| f64::from(u8::from(keep(x, y))));
+    img.meta = ImageMeta::synthetic(8);
+    let p = root.join("camp/mask.png");
+    bostrack_io::write_png_u8(&p, &img).unwrap();
+    p
+}
+
+#[test]
+fn a_zero_one_mask_keeps_its_ones_and_no_dot_outside_it_is_valid() {
+    let (root, cfg) = campaign("mask = \"mask.png\"\n");
+    // keep the left 85 columns, less the centre pixel of every 7th dot there (found without
+    // a mask): those dots' centres lie outside the region of interest
+    write_logical_mask(root.path(), |_, _| true);
+    let plan = Plan::load(&cfg).unwrap();
+    let holes: Vec<(usize, usize)> = ReferenceContext::prepare(&plan)
+        .unwrap()
+        .fits()
+        .iter()
+        .filter(|d| d.params.x0 > 10.0 && d.params.x0 < 80.0 && d.params.y0 > 10.0)
+        .step_by(7)
+        .map(|d| (d.params.x0.round() as usize, d.params.y0.round() as usize))
+        .collect();
+    assert!(holes.len() >= 5, "{}", holes.len());
+    write_logical_mask(root.path(), |x, y| x < 85 && !holes.contains(&(x, y)));
+    let ctx = ReferenceContext::prepare(&plan).unwrap();
+    let mask = ctx.mask().unwrap();
+    assert_eq!(mask.count_kept(), 85 * 144 - holes.len());
+    let r = process_frame(&ctx, &plan, &plan.gradients[0]).unwrap();
+    let outside = |p: Option<[f64; 2]>| p.is_some_and(|p| !mask.keeps_point(p[0], p[1]));
+    let mut flagged = 0;
+    for d in &r.dots {
+        let out = outside(d.reference_position)
+            || outside(d.gradient.map(|g| [g.params.x0, g.params.y0]));
+        assert_eq!(
+            d.flags.contains(DotFlags::OUTSIDE_MASK),
+            out,
+            "{:?}",
+            d.index
+        );
+        assert!(
+            !(out && d.valid),
+            "a dot outside the mask is valid: {:?}",
+            d.index
+        );
+        flagged += usize::from(out);
+    }
+    let valid = r.dots.iter().filter(|d| d.valid).count();
+    eprintln!("valid {valid}, outside the mask {flagged}");
+    assert!(valid > 100, "{valid}");
+    assert!(
+        flagged >= holes.len() - 1,
+        "{flagged} of {} holes",
+        holes.len()
+    );
+    for a in 0..2 {
+        assert!((r.summary.medians.d[a].unwrap() - SHIFT[a]).abs() < 0.01);
+    }
+}
+
+#[test]
+fn a_mask_that_leaves_too_little_names_itself_in_the_error() {
+    let (root, cfg) = campaign("mask = \"mask.png\"\n");
+    let mask = write_logical_mask(root.path(), |x, y| x < 6 && y < 6);
+    let plan = Plan::load(&cfg).unwrap();
+    let e = ReferenceContext::prepare(&plan).unwrap_err();
+    assert!(matches!(e, PipelineError::Masked { kept: 36, .. }), "{e:?}");
+    let msg = e.to_string();
+    assert!(
+        msg.contains(&format!(
+            "the mask {} keeps 36 of its 23040 pixels",
+            mask.display()
+        )),
+        "{msg}"
+    );
+
+    // a mask that keeps nothing is refused when it is read, naming it
+    write_logical_mask(root.path(), |_, _| false);
+    let e = ReferenceContext::prepare(&plan).unwrap_err();
+    let msg = e.to_string();
+    assert!(
+        msg.starts_with(&format!("{}: mask keeps no pixel", mask.display())),
+        "{msg}"
+    );
+}
+
+#[test]
+fn a_multi_page_tiff_is_a_stack_and_gives_what_its_pages_give_as_files() {
+    let (root, cfg) = campaign("");
+    let camp = root.path().join("camp");
+    // the same three no-flow images as one multi-page file
+    let pages: Vec<Image> = (1..=3)
+        .map(|k| bostrack_io::read_image(&camp.join(format!("stack/s{k}.tif"))).unwrap())
+        .collect();
+    bostrack_io::write_tiff_stack_u16(&camp.join("stack.tif"), &pages).unwrap();
+    let file_cfg = root.path().join("file.toml");
+    fs::write(
+        &file_cfg,
+        "[input]\ndir = \"camp\"\nstack = \"stack.tif\"\nstack_dir = \"nowhere\"\n[detect]\nspacing = 8.0\n",
+    )
+    .unwrap();
+
+    let run = |cfg: &Path, out: &str| {
+        let plan = Plan::load(cfg).unwrap();
+        let ctx = ReferenceContext::prepare(&plan).unwrap();
+        assert_eq!(ctx.stack_summary().unwrap().images, 3);
+        assert_eq!(ctx.noise().1, "stack");
+        let r = process_frame(&ctx, &plan, &plan.gradients[0]).unwrap();
+        write_frame(&root.path().join(out), &r).unwrap();
+        (plan, csv_of(&root.path().join(out), "frame_1"))
+    };
+    let (plan, from_file) = run(&file_cfg, "out-file");
+    assert_eq!(plan.stack, vec![camp.join("stack.tif")]);
+    let (_, from_folder) = run(&cfg, "out-folder");
+    assert!(
+        from_file == from_folder,
+        "the stack file gives other results"
+    );
+    // u_ref_x (column 22) comes from the stack
+    assert!(
+        from_file
+            .lines()
+            .skip(1)
+            .any(|l| l.split(',').nth(22).is_some_and(|u| !u.is_empty()))
+    );
+
+    // a stack file that is missing is a configuration error naming the key
+    fs::write(
+        &file_cfg,
+        "[input]\ndir = \"camp\"\nstack = \"none.tif\"\n[detect]\nspacing = 8.0\n",
+    )
+    .unwrap();
+    let e = Plan::load(&file_cfg).unwrap_err();
+    assert!(
+        matches!(&e, ConfigError::NotFound { key, .. } if key == "input.stack"),
+        "{e:?}"
+    );
 }

@@ -55,6 +55,26 @@ fn real_sample_pair_runs_and_the_bound_agrees_with_the_stack() {
     assert!(matched_fraction > 0.98, "{matched_fraction}");
     assert!(s.counts.valid as f64 > 0.95 * s.counts.reference_fitted as f64);
 
+    // no dot whose centre lies outside the mask is valid (before the `outside_mask` flag, 19
+    // such dots were valid and counted while the figures drew them as "outside mask")
+    let mask = ctx.mask().expect("the sample's mask");
+    let outside = |p: [f64; 2]| !mask.keeps_point(p[0], p[1]);
+    let flagged = frame
+        .dots
+        .iter()
+        .filter(|d| d.flags.contains(bostrack_core::DotFlags::OUTSIDE_MASK))
+        .count();
+    let valid_outside = frame
+        .dots
+        .iter()
+        .filter(|d| d.valid && d.reference_position.is_some_and(outside))
+        .count();
+    eprintln!(
+        "dots flagged outside_mask: {flagged}; valid with the centre outside: {valid_outside}"
+    );
+    assert_eq!(valid_outside, 0);
+    assert!(flagged >= 10, "{flagged}");
+
     // AR inside and outside the flow region
     let mut ar_in = Vec::new();
     let mut ar_out = Vec::new();

@@ -10,7 +10,7 @@
 //!   → `paper-mc-<study>.csv`, `.png`, `.svg`, `paper-mc.md`.
 
 use crate::Outcome;
-use crate::jobs::JobsArg;
+use crate::jobs::{JobsArg, positive_up_to};
 use anyhow::{Context as _, bail};
 use bostrack_core::{DotFit, FitStatus};
 use bostrack_figures::{AxisScale, Figure, RefLine, SeriesStyle, XyPlot, XySeries, xy_panels};
@@ -67,7 +67,7 @@ pub(crate) struct BenchArgs {
     out: PathBuf,
     /// Noise realisations: cells per scene of the error-vs-time study [default: 1000], or fits
     /// per draw with --paper [default: 1000].
-    #[arg(long, value_name = "N")]
+    #[arg(long, value_name = "N", value_parser = positive_up_to::<1_000_000>)]
     realisations: Option<NonZeroUsize>,
     /// Seed of the random positions and noise.
     #[arg(long, value_name = "N", default_value_t = 1)]
@@ -86,13 +86,13 @@ pub(crate) struct BenchArgs {
     #[arg(long, value_name = "DIR", requires = "real")]
     sample: Option<PathBuf>,
     /// With --real: timed runs of each stage; the best is kept.
-    #[arg(long, value_name = "N", default_value = "3", requires = "real")]
+    #[arg(long, value_name = "N", default_value = "3", requires = "real", value_parser = positive_up_to::<100>)]
     runs: NonZeroUsize,
     /// Run the paper's Monte Carlo (bostrack-paper) instead of the study.
     #[arg(long, conflicts_with = "scenes")]
     paper: bool,
     /// With --paper: random setups per study.
-    #[arg(long, value_name = "N", default_value = "1000", requires = "paper")]
+    #[arg(long, value_name = "N", default_value = "1000", requires = "paper", value_parser = positive_up_to::<1_000_000>)]
     draws: NonZeroUsize,
     #[command(flatten)]
     jobs: JobsArg,

@@ -71,8 +71,7 @@ pub(crate) struct CrlbArgs {
 
 /// Reads and validates a setup file; errors name the file and the offending key.
 fn load_setup(path: &Path) -> anyhow::Result<Setup> {
-    let text =
-        std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let text = bostrack_pipeline::read_config_text(path)?;
     Setup::from_toml(&text).with_context(|| format!("{}", path.display()))
 }
 

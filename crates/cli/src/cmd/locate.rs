@@ -82,7 +82,8 @@ pub(crate) struct LocateArgs {
     /// Image of the dot target (TIFF or PNG).
     #[arg(value_name = "IMAGE")]
     image: PathBuf,
-    /// Region-of-interest mask (white = keep), the size of the image.
+    /// Region-of-interest mask, the size of the image: pixels displaying brighter than the
+    /// midpoint of its darkest and brightest values are kept ({0,1}, {0,255}, {0,65535}).
     #[arg(long, value_name = "MASK")]
     mask: Option<PathBuf>,
     /// Approximate dot spacing, px (a prior: the lattice is measured from the image).

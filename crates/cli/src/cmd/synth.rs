@@ -2,7 +2,7 @@
 //! exact truth, from a scene file and/or flags.
 
 use crate::Outcome;
-use crate::jobs::JobsArg;
+use crate::jobs::{JobsArg, up_to};
 use anyhow::{Context as _, bail};
 use bostrack_core::Image;
 use bostrack_synth::{DisplacementField, FlowConfig, Scene, SceneConfig, stack, write_truth_csv};
@@ -83,10 +83,10 @@ pub(crate) struct SynthArgs {
     #[arg(long, value_name = "PX2")]
     blur: Option<f64>,
     /// Number of gradient frames (same flow, independent noise).
-    #[arg(long, value_name = "N", default_value_t = 3)]
+    #[arg(long, value_name = "N", default_value_t = 3, value_parser = up_to::<10_000>)]
     frames: usize,
     /// Number of no-flow stack images.
-    #[arg(long = "stack", value_name = "K", default_value_t = 5)]
+    #[arg(long = "stack", value_name = "K", default_value_t = 5, value_parser = up_to::<1000>)]
     stack_size: usize,
     /// Write into DIR even if it is not empty (files of the same name are replaced).
     #[arg(long)]

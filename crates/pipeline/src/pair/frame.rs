@@ -269,6 +269,15 @@ pub fn process_image(
         partner[p.reference] = Some(p.gradient);
         flags[p.reference] |= p.flags | c.flags();
     }
+    // a centre outside the region of interest, in either image, is not a measurement there
+    if let Some(mask) = ctx.mask.as_ref() {
+        let outside = |d: &DotFit| usable(d) && !mask.keeps_point(d.params.x0, d.params.y0);
+        for (i, f) in flags.iter_mut().enumerate() {
+            if outside(&ctx.fits[i]) || partner[i].is_some_and(|j| outside(&m.fits[j])) {
+                f.insert(DotFlags::OUTSIDE_MASK);
+            }
+        }
+    }
     times.push("validate", sw.lap());
 
     let dcfg = DisplacementConfig {

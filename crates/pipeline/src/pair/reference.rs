@@ -121,11 +121,15 @@ impl ReferenceContext {
     pub fn prepare(plan: &Plan) -> Result<ReferenceContext, PipelineError> {
         let mut sw = Stopwatch::start();
         let mut times = StageTimes::default();
-        let stack = plan
+        // every page of every stack file is a no-flow image (a multi-page TIFF is a stack)
+        let stack: Vec<Image> = plan
             .stack
             .par_iter()
-            .map(|p| bostrack_io::read_image(p))
-            .collect::<Result<Vec<Image>, _>>()?;
+            .map(|p| bostrack_io::read_stack(p))
+            .collect::<Result<Vec<Vec<Image>>, _>>()?
+            .into_iter()
+            .flatten()
+            .collect();
         if !stack.is_empty() {
             times.push("stack_decode", sw.lap());
         }
@@ -185,9 +189,10 @@ impl ReferenceContext {
                 });
             }
         }
+        let mask_path = plan.mask.clone().unwrap_or_else(|| PathBuf::from("<mask>"));
         if let Some(m) = mask.as_ref().filter(|m| !m.matches(&reference)) {
             return Err(PipelineError::SizeMismatch {
-                path: source.clone(),
+                path: mask_path,
                 what: "mask size".into(),
                 expected: size_text(w, h),
                 got: size_text(m.width(), m.height()),
@@ -232,9 +237,21 @@ impl ReferenceContext {
                 }
             })
         };
+        // a failure of the reference side while a mask is given names the mask too
+        let with_mask = |e: PipelineError| match &mask {
+            Some(m) => PipelineError::Masked {
+                mask: mask_path.clone(),
+                kept: m.count_kept(),
+                total: m.width() * m.height(),
+                source: Box::new(e),
+            },
+            None => e,
+        };
         let (noise_result, detect_result) = rayon::join(|| timed(noise_job), || timed(detect_job));
-        let (((noise, noise_source), noise_time), (detection, detect_time)) =
-            (noise_result?, detect_result?);
+        let (((noise, noise_source), noise_time), (detection, detect_time)) = (
+            noise_result.map_err(with_mask)?,
+            detect_result.map_err(with_mask)?,
+        );
         let reference_noise = if plan.reference == ReferenceImage::StackMean && !stack.is_empty() {
             let k = stack.len() as f64;
             NoiseModel {
@@ -255,19 +272,21 @@ impl ReferenceContext {
             &plan.fit,
             &reference_noise,
         )
-        .map_err(|e| PipelineError::Fit {
-            path: source.clone(),
-            source: e,
+        .map_err(|e| {
+            with_mask(PipelineError::Fit {
+                path: source.clone(),
+                source: e,
+            })
         })?;
         times.push("fit", sw.lap());
         if !fits.iter().any(usable) {
-            return Err(PipelineError::NoDots {
+            return Err(with_mask(PipelineError::NoDots {
                 path: source,
                 message: format!(
                     "none of the {} detected dots could be fitted",
                     detection.seeds.len()
                 ),
-            });
+            }));
         }
 
         let mut ctx = ReferenceContext {
@@ -292,7 +311,7 @@ impl ReferenceContext {
                 quantities.name()
             ))
         } else if stack.is_empty() {
-            Some("no no-flow stack configured ([input] stack_dir = \"\"): no u_ref, u_grad, u_d; the per-dot bounds crlb_* are still given".into())
+            Some("no no-flow stack configured ([input] stack = \"\" and stack_dir = \"\"): no u_ref, u_grad, u_d; the per-dot bounds crlb_* are still given".into())
         } else if stack.len() < MIN_STACK_IMAGES {
             Some(format!(
                 "the no-flow stack has {} image(s); a per-dot u_ref needs at least {MIN_STACK_IMAGES}",
