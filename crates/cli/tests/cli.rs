@@ -795,3 +795,85 @@ fn locate_input_errors_exit_1() {
     );
     assert!(!dir.path().join("d.csv").exists());
 }
+
+/// Issue #14, item 1: `info` and `locate` find the clip level of 12-bit data in a 16-bit file
+/// (the scene `testdata/clipped/scene.toml`, as `bostrack synth` writes it).
+#[test]
+fn info_and_locate_find_a_12_bit_clip_in_a_16_bit_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../testdata/clipped/scene.toml");
+    let o = bostrack(
+        &[
+            "synth",
+            "--scene",
+            scene.to_str().unwrap(),
+            "--width",
+            "96",
+            "--height",
+            "96",
+            "-o",
+            "c",
+        ],
+        dir.path(),
+    );
+    assert_eq!(code(&o), 0, "{}", stderr(&o));
+    let o = bostrack(&["info", "c/reference.tif"], dir.path());
+    assert_eq!(code(&o), 0, "{}", stderr(&o));
+    let v: Value = serde_json::from_str(stdout(&o).trim()).unwrap();
+    assert_eq!(v["bits_per_sample"], 16);
+    assert_eq!(v["saturation"], 65535.0);
+    assert_eq!(v["saturated_pixels"], 0);
+    let clip = &v["clip_level"];
+    assert_eq!(
+        (clip["level"].as_f64(), clip["source"].as_str()),
+        (Some(4095.0), Some("pile-up")),
+        "{v}"
+    );
+    assert!(clip["clipped_pixels"].as_u64().unwrap() > 100, "{v}");
+
+    // the number of rows flagged saturated for each --saturation
+    let saturated = |extra: &[&str]| {
+        let mut args = vec![
+            "locate",
+            "c/reference.tif",
+            "-o",
+            "d.csv",
+            "--spacing",
+            "10",
+        ];
+        args.extend_from_slice(extra);
+        let o = bostrack(&args, dir.path());
+        assert_eq!(code(&o), 0, "{}", stderr(&o));
+        let (_, rows) = read_csv(&dir.path().join("d.csv"));
+        (
+            rows.iter().filter(|r| r[5].contains("saturated")).count(),
+            rows.len(),
+            stderr(&o),
+        )
+    };
+    let (auto, n, msg) = saturated(&[]);
+    assert!(auto * 10 >= n * 8, "{auto} of {n} flagged saturated");
+    assert!(msg.contains("clip level 4095 (pile-up"), "{msg}");
+    let (given, _, msg) = saturated(&["--saturation", "4095"]);
+    assert_eq!(given, auto);
+    assert!(msg.contains("clip level 4095 (given"), "{msg}");
+    let (container, _, _) = saturated(&["--saturation", "65535"]);
+    assert_eq!(container, 0);
+    let o = bostrack(
+        &[
+            "locate",
+            "c/reference.tif",
+            "-o",
+            "d.csv",
+            "--saturation",
+            "max",
+        ],
+        dir.path(),
+    );
+    assert_eq!(code(&o), 1);
+    assert!(
+        stderr(&o).contains("expected \"auto\" or a level in counts"),
+        "{}",
+        stderr(&o)
+    );
+}

@@ -3,7 +3,7 @@
 
 use crate::FitError;
 use crate::error::check_mask;
-use bostrack_core::{Image, Mask, NoiseModel};
+use bostrack_core::{Image, Mask, NoiseModel, SampleFormat};
 use rayon::prelude::*;
 
 /// One intensity bin of a noise estimate.
@@ -24,6 +24,18 @@ pub struct NoiseBin {
 pub struct NoiseFit {
     pub model: NoiseModel,
     pub bins: Vec<NoiseBin>,
+    /// Standard errors of `model.read_variance` (counts²) and `model.gain` from the line fit:
+    /// the weighted least-squares covariance scaled by the reduced χ² of the used bins when it
+    /// exceeds 1 (so a curve that is not a straight line widens them). They are statistical
+    /// only: a single image cannot tell static pixel-to-pixel variations from noise (see
+    /// [`estimate_noise`]).
+    pub read_variance_se: f64,
+    pub gain_se: f64,
+    /// Whether the line was resolved: `false` when it fell to zero or below at the darkest bin
+    /// (the read variance is then the darkest used bin's variance, at its mean as the offset:
+    /// the documented fall-back). A curve that
+    /// does not grow with the mean gives gain 0 and the weighted mean variance (resolved).
+    pub resolved: bool,
 }
 
 /// Number of intensity bins (equal pixel counts).
@@ -55,6 +67,14 @@ const HP2_SUM: f64 = 70.0;
 /// Checked on synthetic images with known read + shot noise (within 10 %, test
 /// `estimate_noise_recovers_synthetic_noise`). It over-states the noise where dots are much
 /// smaller than σ ≈ 1.3 px (their structure passes the filter): use [`noise_from_stack`] then.
+/// Samples at the floor of unsigned data (0) are clipped and not used either.
+///
+/// A single image cannot tell noise from static pixel-to-pixel variations (fixed-pattern noise,
+/// the print's texture), which are white too: the model is an upper bound of the temporal noise
+/// (on the real sample's stack frames about twice the stack's variance; crates/fit/README.md).
+/// [`estimate_noise_detailed`] gives the line's standard errors, and whether it was resolved
+/// (where it falls to zero or below at the darkest bin, the read variance is the darkest used
+/// bin's own, at its mean as the offset).
 pub fn estimate_noise(img: &Image, mask: Option<&Mask>) -> Result<NoiseModel, FitError> {
     estimate_noise_detailed(img, mask).map(|f| f.model)
 }
@@ -143,6 +163,7 @@ fn stack_pairs(stack: &[Image], mask: Option<&Mask>) -> Result<StoredParts, FitE
     let keep = mask.map(Mask::as_slice);
     // per frame the limit below which a finite sample is not saturated
     let lim: Vec<f64> = stack.iter().map(usable_below).collect();
+    let floor: Vec<f64> = stack.iter().map(usable_above).collect();
     let n_bands = h.div_ceil(BAND);
     let band_pixels = |band: usize| band * BAND * w..((band + 1) * BAND).min(h) * w;
     // Both passes go pixel by pixel (4 at a time, all frames for each: the frames are read as
@@ -164,18 +185,24 @@ fn stack_pairs(stack: &[Image], mask: Option<&Mask>) -> Result<StoredParts, FitE
             let mut k = 0;
             while k < px.len() {
                 let l = (px.len() - k).min(4);
-                let (mut nonfinite, mut over) = ([0.0; 4], [f64::NEG_INFINITY; 4]);
-                for (d, &lim) in data.iter().zip(&lim) {
+                let (mut nonfinite, mut over, mut under) =
+                    ([0.0; 4], [f64::NEG_INFINITY; 4], [f64::INFINITY; 4]);
+                for ((d, &lim), &floor) in data.iter().zip(&lim).zip(&floor) {
                     let v = four(d, k);
                     for i in 0..4 {
                         nonfinite[i] += v[i] * 0.0;
                         let e = v[i] - lim;
                         over[i] = if e > over[i] { e } else { over[i] };
+                        let f = v[i] - floor;
+                        under[i] = if f < under[i] { f } else { under[i] };
                     }
                 }
                 let mut sel = [0u64; 4];
                 for i in 0..l {
-                    let o = (nonfinite[i] == 0.0) & (over[i] < 0.0) & kept.is_none_or(|m| m[k + i]);
+                    let o = (nonfinite[i] == 0.0)
+                        & (over[i] < 0.0)
+                        & (under[i] > 0.0)
+                        & kept.is_none_or(|m| m[k + i]);
                     ok[k + i] = o;
                     sel[i] = if o { u64::MAX } else { 0 };
                 }
@@ -267,6 +294,17 @@ fn four(d: &[f64], k: usize) -> [f64; 4] {
 /// The limit below which a finite sample is not saturated (∞ without a saturation level).
 fn usable_below(img: &Image) -> f64 {
     img.meta.saturation.unwrap_or(f64::INFINITY)
+}
+
+/// The limit above which a sample is not clipped at the floor: 0 for unsigned integer samples
+/// (a camera whose dark level is subtracted clips at 0: such samples carry no noise, and the
+/// real sample's dark band, about 10 % of its pixels at 0, made the single-image read noise 0),
+/// -∞ for float samples.
+fn usable_above(img: &Image) -> f64 {
+    match img.meta.sample_format {
+        SampleFormat::Unsigned => 0.0,
+        SampleFormat::Float => f64::NEG_INFINITY,
+    }
 }
 
 /// Rows per part (work item) of the per-pixel passes. Fixed, so that the order of the pairs and
@@ -385,13 +423,13 @@ struct RowPass {
 /// The runs `[x0, x1)` of unusable samples of a row, and the lowest and highest usable sample.
 type RowScan = (Vec<(usize, usize)>, f64, f64);
 
-/// Per image row: the runs `[x0, x1)` of unusable samples (masked, or not `-∞ < v < lim`), and
+/// Per image row: the runs `[x0, x1)` of unusable samples (masked, or not `floor < v < lim`), and
 /// the range of the usable ones. Chunks of 16 samples that do not change the state (all usable,
 /// or all masked) are passed over whole.
-fn unusable_runs(row: &[f64], keep: Option<&[bool]>, lim: f64) -> RowScan {
+fn unusable_runs(row: &[f64], keep: Option<&[bool]>, floor: f64, lim: f64) -> RowScan {
     const C: usize = 16;
     let w = row.len();
-    let value_ok = |v: f64| (v > f64::NEG_INFINITY) & (v < lim);
+    let value_ok = |v: f64| (v > floor) & (v < lim);
     let mut runs = Vec::new();
     let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
     let (mut x, mut bad_from) = (0, None);
@@ -450,10 +488,17 @@ impl<'a> SingleImage<'a> {
         let (w, h) = (img.width(), img.height());
         let data = img.data();
         let keep = mask.map(Mask::as_slice);
-        let lim = usable_below(img);
+        let (floor, lim) = (usable_above(img), usable_below(img));
         let rows: Vec<RowScan> = (0..h)
             .into_par_iter()
-            .map(|y| unusable_runs(&data[y * w..][..w], keep.map(|m| &m[y * w..][..w]), lim))
+            .map(|y| {
+                unusable_runs(
+                    &data[y * w..][..w],
+                    keep.map(|m| &m[y * w..][..w]),
+                    floor,
+                    lim,
+                )
+            })
             .collect();
         // an unusable sample at x blocks the outputs x-2..=x+2 of rows y-2..=y+2
         let used_rows: Vec<Vec<(usize, usize)>> = (2..h - 2)
@@ -1228,32 +1273,74 @@ fn fit_line(mut bins: Vec<NoiseBin>) -> Result<NoiseFit, FitError> {
     }
     let offset = bins.iter().map(|b| b.mean).fold(f64::INFINITY, f64::min);
     let (alpha, beta) = line;
-    let model = if beta > 0.0 {
-        NoiseModel {
-            read_variance: (alpha + beta * offset).max(1e-12),
+    // the line's covariance: (XᵀWX)⁻¹ scaled by the reduced χ² of the used bins when above 1
+    let used: Vec<&NoiseBin> = bins.iter().filter(|b| b.used).collect();
+    let (mut sw, mut sx, mut sxx, mut chi2) = (0.0, 0.0, 0.0, 0.0);
+    for b in &used {
+        let wgt = 1.0 / (rel(b) * b.variance.max(1e-12)).powi(2);
+        sw += wgt;
+        sx += wgt * b.mean;
+        sxx += wgt * b.mean * b.mean;
+        chi2 += wgt * (b.variance - alpha - beta * b.mean).powi(2);
+    }
+    let scale = (chi2 / (used.len().saturating_sub(2).max(1)) as f64).max(1.0);
+    let det = sw * sxx - sx * sx;
+    let darkest = used
+        .iter()
+        .min_by(|a, b| a.mean.total_cmp(&b.mean))
+        .copied()
+        .unwrap_or(&bins[0]);
+    let at_offset = alpha + beta * offset;
+    let (model, read_variance_se, gain_se, resolved) = if beta > 0.0 && at_offset > 0.0 {
+        let (var_a, var_b, cov) = (sxx / det * scale, sw / det * scale, -sx / det * scale);
+        let var_r = var_a + offset * offset * var_b + 2.0 * offset * cov;
+        let model = NoiseModel {
+            read_variance: at_offset,
             gain: beta,
             offset,
-        }
+        };
+        (model, var_r.max(0.0).sqrt(), var_b.max(0.0).sqrt(), true)
+    } else if beta > 0.0 {
+        // the line falls to zero or below at the darkest bin: not resolved there; the
+        // documented fall-back is the darkest used bin's own variance as the read variance, at
+        // that bin's mean as the offset
+        let model = NoiseModel {
+            read_variance: darkest.variance.max(1e-12),
+            gain: beta,
+            offset: darkest.mean,
+        };
+        let se = rel(darkest) * darkest.variance;
+        (model, se, (sw / det * scale).max(0.0).sqrt(), false)
     } else {
         // no growth with the signal: the weighted mean variance
-        let (mut sw, mut s) = (0.0, 0.0);
-        for b in bins.iter().filter(|b| b.used) {
+        let (mut sw, mut s, mut s2) = (0.0, 0.0, 0.0);
+        for b in &used {
             let wgt = b.count as f64;
             sw += wgt;
             s += wgt * b.variance;
+            s2 += wgt * b.variance * b.variance;
         }
-        NoiseModel {
-            read_variance: (s / sw).max(1e-12),
+        let mean = s / sw;
+        let spread = ((s2 / sw - mean * mean).max(0.0) / used.len().max(1) as f64).sqrt();
+        let model = NoiseModel {
+            read_variance: mean.max(1e-12),
             gain: 0.0,
             offset: 0.0,
-        }
+        };
+        (model, spread, 0.0, true)
     };
     if !(model.read_variance.is_finite() && model.gain.is_finite()) {
         return Err(FitError::Noise(
             "the variance-versus-mean line is not finite".into(),
         ));
     }
-    Ok(NoiseFit { model, bins })
+    Ok(NoiseFit {
+        model,
+        bins,
+        read_variance_se,
+        gain_se,
+        resolved,
+    })
 }
 
 #[cfg(test)]
@@ -1489,18 +1576,55 @@ mod tests {
         assert_eq!(one, on(3));
     }
 
-    /// An image with integer samples, a mask with a hole, and unusable samples (NaN, ±∞,
-    /// saturated).
+    #[test]
+    fn an_unresolved_line_falls_back_to_the_darkest_bin() {
+        // variance falling to 0 at the darkest bin (as a clipped dark band made it): the
+        // line's value there is not used, the darkest bin's own variance is
+        let bins: Vec<NoiseBin> = (0..8)
+            .map(|k| NoiseBin {
+                mean: 100.0 * k as f64,
+                variance: if k == 0 { 40.0 } else { 100.0 * k as f64 },
+                count: 10_000,
+                used: true,
+            })
+            .collect();
+        let f = fit_line(bins).unwrap();
+        assert!(!f.resolved, "{f:?}");
+        // the darkest bin is rejected as an outlier of the line; the darkest used one is (100,
+        // 100), and the model passes through it with the line's slope
+        assert_eq!((f.model.read_variance, f.model.offset), (100.0, 100.0));
+        assert!((f.model.gain - 1.0).abs() < 1e-9, "{f:?}");
+        // a straight line through positive values is resolved, with small errors
+        let bins: Vec<NoiseBin> = (0..8)
+            .map(|k| NoiseBin {
+                mean: 100.0 * k as f64,
+                variance: 50.0 + 0.5 * 100.0 * k as f64,
+                count: 10_000,
+                used: true,
+            })
+            .collect();
+        let f = fit_line(bins).unwrap();
+        assert!(f.resolved);
+        assert!((f.model.read_variance - 50.0).abs() < 1e-6 && (f.model.gain - 0.5).abs() < 1e-9);
+        assert!(
+            f.read_variance_se > 0.0 && f.read_variance_se < 2.0,
+            "{f:?}"
+        );
+    }
+
+    /// An image with 12-bit integer samples, a mask with a hole, and unusable samples (NaN, ±∞,
+    /// saturated, clipped at the floor 0).
     fn test_image(w: usize, h: usize, rng: &mut Rng) -> (Image, Mask) {
         let mut img = Image::from_fn(w, h, |_, _| 0.0);
-        img.meta.saturation = Some(4095.0);
+        img.meta = bostrack_core::ImageMeta::synthetic(12);
         for v in img.data_mut() {
             *v = match rng.below(200) {
                 0 => f64::NAN,
                 1 => f64::INFINITY,
                 2 => f64::NEG_INFINITY,
                 3 => 4095.0,
-                _ => rng.below(4095) as f64,
+                4 => 0.0,
+                _ => 1.0 + rng.below(4094) as f64,
             };
         }
         let (cx, cy) = (w / 3, h / 2);
@@ -1517,7 +1641,7 @@ mod tests {
         let (w, h) = (img.width(), img.height());
         let usable = |x: usize, y: usize| {
             let v = img.get(x, y);
-            v.is_finite() && !img.is_saturated(v) && mask.is_none_or(|m| m.keeps(x, y))
+            v.is_finite() && v > 0.0 && !img.is_saturated(v) && mask.is_none_or(|m| m.keeps(x, y))
         };
         let mut out = Vec::new();
         for y in 2..h - 2 {
@@ -1605,7 +1729,7 @@ mod tests {
                 m.is_none_or(|m| m.as_slice()[k])
                     && stack.iter().all(|img| {
                         let v = img.data()[k];
-                        v.is_finite() && !img.is_saturated(v)
+                        v.is_finite() && v > 0.0 && !img.is_saturated(v)
                     })
             };
             let used: Vec<usize> = (0..w * h).filter(|&k| usable(k)).collect();

@@ -1,18 +1,17 @@
 //! The real sample (skipped with a message when the data are missing; fails when CI=true).
 //! A reduced version of `examples/real_sample.rs`: every 20th dot of the package's list (595).
 
+mod common;
+
 use bostrack_core::{DotFlags, GridIndex, Seed, Window};
 use bostrack_fit::{FitConfig, estimate_noise, fit_dots, noise_from_stack};
-use bostrack_io::{bos_sample_dir, read_image, read_mask_for};
 
 #[test]
 fn real_sample_fits_and_noise() {
-    let Some(dir) = bos_sample_dir() else { return };
-    let img = read_image(&dir.join("pair/reference.tif")).unwrap();
-    let mask = read_mask_for(&dir.join("mask.tif"), img.width(), img.height()).unwrap();
-    let stack: Vec<_> = (1..=10)
-        .map(|k| read_image(&dir.join(format!("ref-stack/im_{k:04}.tif"))).unwrap())
-        .collect();
+    let Some((img, mask, stack)) = common::real_sample() else {
+        return;
+    };
+    let dir = bostrack_io::bos_sample_dir().unwrap();
     // noise: the stack gives ~15 counts at the background and ~30-36 at the dot peaks (shared
     // CRATE-NOTES); the single-image estimate agrees within 30 %
     let ns = noise_from_stack(&stack, Some(&mask)).unwrap();

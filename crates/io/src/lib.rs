@@ -14,6 +14,7 @@
 //! | PNG | grayscale 8 or 16 bit (1/2/4-bit grayscale expanded to 8 bit) |
 //! | masks ([`read_mask`]) | any of the above; kept = displays brighter than the midpoint of the mask's darkest and brightest samples ({0, 1}, {0, 255}, {0, 65535} alike) |
 //! | writing | TIFF u16 and f32 (uncompressed, little-endian), PNG u8 and u16; atomic (temp file + rename) |
+//! | clip level | `saturation` = `2^bits - 1` on reading; [`read_image_clipped`] / [`apply_saturation`] set the camera's level (`"auto"`: [`find_clip_level`], e.g. 4095 for 12-bit data in a 16-bit file) |
 //!
 //! 8/16/32-bit and float TIFF samples are decoded by the `tiff` crate. Neither it nor `image`
 //! decodes 12-bit samples, so for those this crate takes the strip/tile tags from the `tiff`
@@ -52,6 +53,7 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
+mod clip;
 mod decompress;
 mod error;
 mod format;
@@ -62,6 +64,10 @@ mod sample;
 mod tiff_read;
 mod write;
 
+pub use clip::{
+    ClipLevel, ClipSource, PILE_BELOW, PILE_MIN, PILE_RATIO, Saturation, apply_saturation,
+    find_clip_level, max_sample_value, read_image_clipped,
+};
 pub use error::{IoError, IoErrorKind};
 pub use format::{ByteOrder, FileFormat};
 pub use info::{ImageInfo, ImageStats, image_stats};

@@ -6,6 +6,7 @@
 
 use bostrack_core::DotFlags;
 use bostrack_displacement::DisplacementConfig;
+pub use bostrack_io::Saturation;
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 
@@ -73,6 +74,10 @@ pub struct InputConfig {
     pub gradient_glob: String,
     /// Region-of-interest mask; empty for the whole image.
     pub mask: PathBuf,
+    /// Clip level of the camera data: `"auto"` (found in every image read, see
+    /// `bostrack_io::find_clip_level`) or a level in counts. Samples at or above it are left
+    /// out of the fits and flag their dot `saturated`.
+    pub saturation: Saturation,
 }
 
 impl Default for InputConfig {
@@ -87,6 +92,7 @@ impl Default for InputConfig {
             gradient_dir: PathBuf::from("gradient"),
             gradient_glob: "*.tif".into(),
             mask: PathBuf::new(),
+            saturation: Saturation::Auto,
         }
     }
 }

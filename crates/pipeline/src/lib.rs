@@ -53,7 +53,7 @@ pub use batch::{
 pub use config::{
     ArVariant, DetectSection, Figure, FigureFormat, FitSection, InputConfig, MatchConfig,
     OutputConfig, PipelineConfig, Quantities, ReferenceFrom, ReferencePosition, RunConfig,
-    UncertaintyConfig,
+    Saturation, UncertaintyConfig,
 };
 pub use error::{ConfigError, PipelineError};
 pub use files::{glob_match, list_matching, natural_cmp};

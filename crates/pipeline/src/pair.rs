@@ -198,6 +198,9 @@ pub struct FrameSummary {
     pub stack: Option<StackSummary>,
     /// Why the stack columns (u_ref, u_grad, u_d) are empty, when they are.
     pub stack_note: Option<String>,
+    /// The frame's clip level and how it was found (`[input] saturation`); `None` for an image
+    /// handed over in memory ([`process_image`]), whose `meta.saturation` is used as it is.
+    pub saturation: Option<bostrack_io::ClipLevel>,
     /// Frame stage wall times (s): decode, detect, fit, match, pair.
     pub times: StageTimes,
 }

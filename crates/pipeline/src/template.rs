@@ -91,6 +91,14 @@ pub(crate) const SECTIONS: &[SectionDoc] = &[
                  darkest and brightest values are kept ({0,1}, {0,255}, {0,65535}, any photometric tag);\n\
                  \"\" for the whole image.",
             ),
+            key(
+                "saturation",
+                "Clip level of the camera, counts: samples at or above it are left out of the fits\n\
+                 and flag their dot \"saturated\". \"auto\" finds it in every image: the TIFF tag\n\
+                 MaxSampleValue, else a pile-up of samples at the largest value, else the camera's\n\
+                 significant bits (12-bit data in a 16-bit file clip at 4095), else the file's\n\
+                 maximum 2^bits - 1; the run record and summary.json say what was found.",
+            ),
         ],
     },
     SectionDoc {

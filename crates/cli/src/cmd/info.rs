@@ -3,7 +3,7 @@
 use crate::Outcome;
 use crate::jobs::JobsArg;
 use anyhow::Context as _;
-use bostrack_io::{ImageInfo, image_stats, probe, read_stack};
+use bostrack_io::{ImageInfo, find_clip_level, image_stats, max_sample_value, probe, read_stack};
 use clap::Args;
 use rayon::prelude::*;
 use serde_json::{Map, Value, json};
@@ -18,6 +18,9 @@ bits_per_sample, sample_format, compression, photometric, pages, endianness, til
 statistics of its samples over all pages (min, max, mean over the finite samples, \
 saturated_pixels at or above the saturation level 2^bits - 1, non_finite_pixels). Samples are in \
 camera counts, larger = brighter (WhiteIsZero files are inverted on reading).\n\n\
+clip_level is the clip level that `saturation = \"auto\"` finds in the first page (level, source: \
+max-sample-value, pile-up, significant-bits, container or none; clipped_pixels at or above it, \
+max_sample, container): 12-bit data in a 16-bit file clip at 4095, not at 65535.\n\n\
 With several files, a file that cannot be read is reported on stderr, the others are still \
 printed, and the exit code is 2."
 )]
@@ -66,6 +69,8 @@ fn describe(path: &Path) -> anyhow::Result<Value> {
         _ => Map::new(),
     };
     obj.insert("saturation".into(), json!(pages[0].meta.saturation));
+    let clip = find_clip_level(&pages[0], max_sample_value(path)?);
+    obj.insert("clip_level".into(), json!(clip));
     // Statistics over every page: min of the minima, max of the maxima, mean weighted by the
     // number of finite samples of each page.
     let (mut min, mut max, mut sum, mut n_finite) = (f64::INFINITY, f64::NEG_INFINITY, 0.0, 0usize);

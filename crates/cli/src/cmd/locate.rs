@@ -6,6 +6,7 @@ use anyhow::Context as _;
 use bostrack_core::{DotFit, DotFlags, FitStatus, NoiseModel};
 use bostrack_detect::{DetectConfig, detect};
 use bostrack_fit::{Estimator, FitConfig, estimate_noise, fit_dots};
+use bostrack_io::Saturation;
 use bostrack_model::ModelKind;
 use clap::Args;
 use std::io::Write as _;
@@ -121,6 +122,12 @@ pub(crate) struct LocateArgs {
         requires = "read_noise"
     )]
     offset: f64,
+    /// Clip level of the camera, counts: samples at or above it are left out of the fits and
+    /// flag their dot `saturated`. `auto` finds it in the image: the TIFF tag MaxSampleValue,
+    /// else a pile-up of samples at the largest value, else the significant bits of the samples
+    /// (12-bit data in a 16-bit file clip at 4095), else the file's maximum 2^bits - 1.
+    #[arg(long, value_name = "auto|COUNTS", default_value = "auto", value_parser = parse_saturation)]
+    saturation: Saturation,
     /// Output CSV file (replaced if it exists).
     #[arg(short = 'o', long = "out", value_name = "CSV")]
     out: PathBuf,
@@ -137,6 +144,10 @@ fn parse_model(s: &str) -> Result<ModelKind, String> {
             "unknown model `{s}` (expected elliptical, axis-aligned or circular)"
         )),
     }
+}
+
+fn parse_saturation(s: &str) -> Result<Saturation, String> {
+    s.parse()
 }
 
 fn parse_estimator(s: &str) -> Result<Estimator, String> {
@@ -185,7 +196,7 @@ pub(crate) fn run(args: LocateArgs) -> anyhow::Result<Outcome> {
     };
     fit_cfg.validate()?;
 
-    let image = bostrack_io::read_image(&args.image)?;
+    let (image, clip) = bostrack_io::read_image_clipped(&args.image, args.saturation)?;
     let mask = match &args.mask {
         Some(m) => Some(bostrack_io::read_mask_for(
             m,
@@ -235,11 +246,12 @@ pub(crate) fn run(args: LocateArgs) -> anyhow::Result<Outcome> {
         .filter(|f| f.flags.contains(DotFlags::MISSING))
         .count();
     eprintln!(
-        "{}: {} sites ({} missing), spacing {:.3} px, noise {:.2} counts + gain {:.3}, {} fits usable, {} not; wrote {}",
+        "{}: {} sites ({} missing), spacing {:.3} px, clip level {}, noise {:.2} counts + gain {:.3}, {} fits usable, {} not; wrote {}",
         args.image.display(),
         fits.len(),
         missing,
         det.spacing,
+        clip,
         noise.read_variance.sqrt(),
         noise.gain,
         ok,

@@ -135,3 +135,21 @@ pub fn noisy_image(
         .collect();
     bostrack_core::Image::new(size, size, v, bostrack_core::ImageMeta::default()).unwrap()
 }
+
+/// The real sample's reference image, mask and 10-image no-flow stack; `None` (with a message)
+/// when the data are missing, a panic when CI=true (`bostrack_io::bos_sample_dir`).
+pub fn real_sample() -> Option<(
+    bostrack_core::Image,
+    bostrack_core::Mask,
+    Vec<bostrack_core::Image>,
+)> {
+    use bostrack_io::read_image;
+    let dir = bostrack_io::bos_sample_dir()?;
+    let img = read_image(&dir.join("pair/reference.tif")).unwrap();
+    let mask =
+        bostrack_io::read_mask_for(&dir.join("mask.tif"), img.width(), img.height()).unwrap();
+    let stack = (1..=10)
+        .map(|k| read_image(&dir.join(format!("ref-stack/im_{k:04}.tif"))).unwrap())
+        .collect();
+    Some((img, mask, stack))
+}

@@ -182,10 +182,11 @@ pub fn process_frame(
     frame: &Path,
 ) -> Result<FrameResult, PipelineError> {
     let mut sw = Stopwatch::start();
-    let img = bostrack_io::read_image(frame)?;
+    let (img, clip) = bostrack_io::read_image_clipped(frame, plan.config.input.saturation)?;
     let decode = sw.lap();
     let mut r = process_image(ctx, plan, &img, frame)?;
     r.summary.times.stages.insert(0, ("decode".into(), decode));
+    r.summary.saturation = Some(clip);
     Ok(r)
 }
 
@@ -358,6 +359,7 @@ pub fn process_image(
         noise: Some(ctx.noise_summary()),
         stack: ctx.stack.clone(),
         stack_note: ctx.stack_note.clone(),
+        saturation: None,
         times,
     };
     Ok(FrameResult {

@@ -9,8 +9,10 @@ use bostrack_core::{DotFit, DotFlags, Image, Mask, NoiseModel};
 use bostrack_detect::Detection;
 use bostrack_displacement::{ArShapes, ReferenceStats};
 use bostrack_fit::{Estimator, FitConfig, FitSampling};
+use bostrack_io::{ClipLevel, ClipSource, Saturation};
 use bostrack_uncertainty::{CommonMode, StackConfig, reference_stack};
 use rayon::prelude::*;
+use serde::Serialize;
 use serde_json::json;
 use std::path::{Path, PathBuf};
 
@@ -78,6 +80,51 @@ pub struct ReferenceContext {
     pub(crate) quantities: Quantities,
     pub(crate) ar_shapes: ArShapes,
     pub(crate) times: StageTimes,
+    /// The clip levels of the files read ([`ReferenceContext::prepare`]); `None` for images
+    /// handed over in memory, whose `meta.saturation` is used as it is.
+    pub(crate) clip: Option<ClipSummary>,
+}
+
+/// The clip levels of the reference side, for the run record (`saturation`).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub(crate) struct ClipSummary {
+    /// `[input] saturation` as configured.
+    setting: Saturation,
+    /// The reference file's level (absent for a stack-mean reference: each stack image's own).
+    reference: Option<ClipLevel>,
+    /// The distinct levels of the stack images: level, source, images.
+    stack: Vec<StackClip>,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize)]
+struct StackClip {
+    level: Option<f64>,
+    source: ClipSource,
+    images: usize,
+}
+
+impl ClipSummary {
+    fn new(setting: Saturation, reference: Option<ClipLevel>, stack: &[ClipLevel]) -> Self {
+        let mut distinct: Vec<StackClip> = Vec::new();
+        for c in stack {
+            match distinct
+                .iter_mut()
+                .find(|d| d.level == c.level && d.source == c.source)
+            {
+                Some(d) => d.images += 1,
+                None => distinct.push(StackClip {
+                    level: c.level,
+                    source: c.source,
+                    images: 1,
+                }),
+            }
+        }
+        ClipSummary {
+            setting,
+            reference,
+            stack: distinct,
+        }
+    }
 }
 
 /// Shapes the amplification ratio is evaluated on, by the fit's sampling (see the module
@@ -121,27 +168,44 @@ impl ReferenceContext {
     pub fn prepare(plan: &Plan) -> Result<ReferenceContext, PipelineError> {
         let mut sw = Stopwatch::start();
         let mut times = StageTimes::default();
-        // every page of every stack file is a no-flow image (a multi-page TIFF is a stack)
-        let stack: Vec<Image> = plan
+        let saturation = plan.config.input.saturation;
+        // every page of every stack file is a no-flow image (a multi-page TIFF is a stack),
+        // each with its clip level
+        let (stack, stack_clips): (Vec<Image>, Vec<ClipLevel>) = plan
             .stack
             .par_iter()
-            .map(|p| bostrack_io::read_stack(p))
-            .collect::<Result<Vec<Vec<Image>>, _>>()?
+            .map(|p| -> Result<Vec<(Image, ClipLevel)>, bostrack_io::IoError> {
+                bostrack_io::read_stack(p)?
+                    .into_iter()
+                    .map(|mut img| {
+                        let clip = bostrack_io::apply_saturation(&mut img, saturation, Some(p))?;
+                        Ok((img, clip))
+                    })
+                    .collect()
+            })
+            .collect::<Result<Vec<_>, _>>()?
             .into_iter()
             .flatten()
-            .collect();
+            .unzip();
         if !stack.is_empty() {
             times.push("stack_decode", sw.lap());
         }
         check_stack_kind(&stack)?;
-        let (reference, source) = match &plan.reference {
-            ReferenceImage::File(p) => (bostrack_io::read_image(p)?, p.clone()),
+        let (reference, source, reference_clip) = match &plan.reference {
+            ReferenceImage::File(p) => {
+                let (img, clip) = bostrack_io::read_image_clipped(p, saturation)?;
+                (img, p.clone(), Some(clip))
+            }
             ReferenceImage::StackMean => {
                 let first = stack.first().ok_or_else(|| PipelineError::NoDots {
                     path: plan.config_file.clone(),
                     message: "the reference is the stack mean but the stack is empty".into(),
                 })?;
-                (pixel_mean(&stack, first)?, PathBuf::from("<stack mean>"))
+                (
+                    pixel_mean(&stack, first)?,
+                    PathBuf::from("<stack mean>"),
+                    None,
+                )
             }
         };
         let (w, h) = (reference.width(), reference.height());
@@ -151,7 +215,9 @@ impl ReferenceContext {
             .map(|p| bostrack_io::read_mask_for(p, w, h))
             .transpose()?;
         times.push("decode", sw.lap());
-        Self::build(plan, reference, source, mask, stack, times)
+        let mut ctx = Self::build(plan, reference, source, mask, stack, times)?;
+        ctx.clip = Some(ClipSummary::new(saturation, reference_clip, &stack_clips));
+        Ok(ctx)
     }
 
     /// Prepares the reference side from images in memory. `stack` are the no-flow images
@@ -304,6 +370,7 @@ impl ReferenceContext {
             quantities,
             ar_shapes: ar_shapes_for(&plan.fit),
             times,
+            clip: None,
         };
         ctx.stack_note = if quantities < Quantities::Uncertainty {
             Some(format!(
@@ -476,6 +543,7 @@ impl ReferenceContext {
             "ar_shapes": ar_shapes_name(self.ar_shapes),
             "stack": self.stack,
             "stack_note": self.stack_note,
+            "saturation": self.clip,
             "times": self.times,
         })
     }
