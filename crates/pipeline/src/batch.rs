@@ -30,6 +30,14 @@
 //! reference, stack or mask) is refused unless `force`; added gradient frames are simply
 //! computed.
 //!
+//! **Changed inputs** ([`inputs`]). The run record holds the fingerprint (size, modification
+//! time, XXH3-128 content hash) of every reference-side file and of the run's frames, and each
+//! frame's `DIR/<stem>/inputs.json` (written after its outputs) that of its gradient image and
+//! a digest of the reference side. A complete frame whose image changed, or whose record is
+//! missing or names another reference side, is computed again (with a note); a changed
+//! reference image, mask or no-flow image is refused ([`BatchError::InputsChanged`], naming
+//! the files) unless `force`.
+//!
 //! **Failures are data.** A frame that cannot be processed (unreadable file, no dots) is
 //! recorded with its reason in `failures.json`; the other frames finish. Only configuration
 //! and reference-side problems stop a run ([`BatchError`]).
@@ -43,6 +51,7 @@
 pub(crate) mod campaign;
 pub(crate) mod dots;
 pub(crate) mod fsx;
+pub(crate) mod inputs;
 pub(crate) mod record;
 mod shard;
 
@@ -52,6 +61,7 @@ use crate::error::{ConfigError, PipelineError};
 use crate::figures::{FigureSetup, FigureSpec, draw_frame_figures};
 use crate::pair::{ReferenceContext, frame_is_complete, process_frame, write_frame};
 use crate::plan::{Plan, ReferenceImage};
+use inputs::{Fingerprint, FrameInputs, Freshness, freshness};
 use rayon::prelude::*;
 use record::{RUN_RECORD, RunRecord, SHARDS_DIR};
 use serde::{Deserialize, Serialize};
@@ -84,6 +94,9 @@ pub enum BatchError {
         path: PathBuf,
         source: std::io::Error,
     },
+    /// The output folder is not a folder and cannot be created (a file, a link loop).
+    #[error("{}: cannot be the output folder: {problem}", path.display())]
+    OutputDir { path: PathBuf, problem: String },
     /// A file of an output folder is not what bostrack writes.
     #[error("{}: {message}", path.display())]
     Corrupt { path: PathBuf, message: String },
@@ -97,6 +110,17 @@ pub enum BatchError {
         path.display()
     )]
     Mismatch { path: PathBuf, what: String },
+    /// Files on the reference side (reference image, mask, no-flow images) changed since the
+    /// results in the output folder were computed: every frame depends on them.
+    #[error(
+        "{}: the results in this folder were computed from other versions of {}: {}; every \
+         frame depends on them: use --force (or output.overwrite = true) to recompute every \
+         frame, or another output folder",
+        path.display(),
+        if files.len() == 1 { "a reference-side file" } else { "reference-side files" },
+        files.join("; ")
+    )]
+    InputsChanged { path: PathBuf, files: Vec<String> },
     /// The records of an output folder disagree (shards run with different configurations).
     #[error(
         "{} and {} disagree ({what} differs): rerun the shards with one configuration (--force)",
@@ -197,6 +221,9 @@ pub struct BatchReport {
     /// Frames of this run (this shard's share).
     pub frames: usize,
     pub computed: usize,
+    /// Of the computed frames, those whose complete outputs no longer described their inputs
+    /// (the gradient file changed, or the outputs carry no input record): recomputed.
+    pub stale: usize,
     pub figures_drawn: usize,
     pub skipped: usize,
     /// Frames of this run that failed, in frame order.
@@ -286,9 +313,18 @@ pub(crate) fn frame_refs(paths: &[PathBuf], source: &Path) -> Result<Vec<FrameRe
 /// What to do with one frame.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Action {
+    /// Not complete (or forced): compute.
     Compute,
+    /// Complete, but its outputs no longer describe its inputs: compute again.
+    Recompute,
     Figures,
     Skip,
+}
+
+impl Action {
+    fn computes(self) -> bool {
+        matches!(self, Action::Compute | Action::Recompute)
+    }
 }
 
 /// Runs a campaign (or one shard of it) into its output folder, in the current rayon pool
@@ -312,26 +348,53 @@ pub fn run_batch(
         .iter()
         .filter(|f| options.shard.is_none_or(|s| s.contains(f.number)))
         .collect();
+    if let Some(problem) = crate::files::output_dir_problem(&out) {
+        return Err(BatchError::OutputDir { path: out, problem });
+    }
     fsx::create_dir(&out)?;
     let force = options.force || plan.output.overwrite;
     let jobs = rayon::current_num_threads();
     let mut record = RunRecord::new(plan, &out, options.shard, jobs)?;
+    let mut olds: Vec<(PathBuf, Option<RunRecord>)> = Vec::new();
     for path in record::record_files(&out) {
-        let differs = match RunRecord::read(&path) {
-            Ok(old) => record.differs_from(&old),
+        match RunRecord::read(&path) {
+            Ok(old) => olds.push((path, Some(old))),
             Err(e) if !force => return Err(e),
-            Err(_) => Some("the record itself".into()),
+            Err(_) => olds.push((path, None)),
+        }
+    }
+    let known: Vec<&RunRecord> = olds.iter().filter_map(|(_, r)| r.as_ref()).collect();
+    record.fingerprint_reference_side(&known)?;
+    for (path, old) in &olds {
+        let problem = match old {
+            None => Some(BatchError::Mismatch {
+                path: path.clone(),
+                what: "the record itself".into(),
+            }),
+            Some(old) => match record.differs_from(old) {
+                Some(what) => Some(BatchError::Mismatch {
+                    path: path.clone(),
+                    what,
+                }),
+                None => {
+                    let files = record.changed_inputs(old);
+                    (!files.is_empty()).then(|| BatchError::InputsChanged {
+                        path: path.clone(),
+                        files,
+                    })
+                }
+            },
         };
-        match differs {
+        match problem {
             None => {}
-            Some(what) if !force => return Err(BatchError::Mismatch { path, what }),
+            Some(e) if !force => return Err(e),
             // Forced: a record of another configuration no longer describes the folder. An
             // unsharded run recomputes every frame, so it drops the shard records; a shard
             // drops run.toml (merge writes it again once every shard agrees).
             Some(_) => {
                 let is_run = path.file_name() == Some(RUN_RECORD.as_ref());
                 if is_run == options.shard.is_some() {
-                    let _ = std::fs::remove_file(&path);
+                    let _ = std::fs::remove_file(path);
                     let _ = std::fs::remove_file(path.with_extension("json"));
                 }
             }
@@ -342,19 +405,57 @@ pub fn run_batch(
         figures: plan.output.figures.clone(),
         formats: plan.output.figure_formats.clone(),
     };
-    let actions: Vec<Action> = mine
-        .iter()
+    // Each frame's inputs now against those its outputs were computed from (a file is read
+    // only when its size or time differ from the recorded ones).
+    let reference_side = record.reference_side_key();
+    let checked: Vec<(Option<Fingerprint>, Action, Option<String>)> = mine
+        .par_iter()
         .map(|f| {
-            if force || !frame_is_complete(&out, &f.stem) {
-                Action::Compute
-            } else if !spec.frame_complete(&out.join(&f.stem)) {
-                Action::Figures
-            } else {
-                Action::Skip
+            let dir = out.join(&f.stem);
+            let complete = !force && frame_is_complete(&out, &f.stem);
+            let stored = complete.then(|| FrameInputs::read(&dir)).flatten();
+            let now = Fingerprint::of(&f.path, stored.as_ref().map(|s| &s.frame)).ok();
+            if !complete {
+                return (now, Action::Compute, None);
             }
+            let fresh = freshness(stored.as_ref(), now.as_ref(), &reference_side, &f.path);
+            let action = match &fresh {
+                Freshness::Stale(_) => Action::Recompute,
+                Freshness::Touched | Freshness::Current => {
+                    if let (Freshness::Touched, Some(now)) = (&fresh, &now) {
+                        // Same content: record the new size and time (a failure only means
+                        // the file is read again next time).
+                        let _ = FrameInputs {
+                            frame: now.clone(),
+                            reference_side: reference_side.clone(),
+                        }
+                        .write(&dir);
+                    }
+                    if spec.frame_complete(&dir) {
+                        Action::Skip
+                    } else {
+                        Action::Figures
+                    }
+                }
+            };
+            let why = match fresh {
+                Freshness::Stale(why) => Some(format!("frame {}: {why}: recomputed", f.number)),
+                _ => None,
+            };
+            (now, action, why)
         })
         .collect();
-    let n_compute = actions.iter().filter(|a| **a == Action::Compute).count();
+    let mut fingerprints = Vec::with_capacity(checked.len());
+    let mut actions = Vec::with_capacity(checked.len());
+    for (fingerprint, action, why) in checked {
+        if let Some(why) = why {
+            progress.note(&why);
+        }
+        fingerprints.push(fingerprint);
+        actions.push(action);
+    }
+    record.inputs.frames = fingerprints.iter().flatten().cloned().collect();
+    let n_compute = actions.iter().filter(|a| a.computes()).count();
     let n_skip = actions.iter().filter(|a| **a == Action::Skip).count();
 
     let ctx = if n_compute > 0 {
@@ -376,12 +477,24 @@ pub fn run_batch(
         None => out.join(RUN_RECORD),
         Some(s) => out.join(SHARDS_DIR).join(format!("{}.toml", s.label())),
     };
+    let previous = olds
+        .iter()
+        .find(|(p, _)| *p == record_path)
+        .and_then(|(_, r)| r.as_ref());
     if let Some(ctx) = &ctx {
         let (width, height) = ctx.image_size();
         record.image = Some(record::ImageSize { width, height });
         record.reference = json_to_toml_table(&ctx.summary());
+    } else if let Some(old) = previous {
+        // Nothing computed: the reference-side facts of the record are still those.
+        record.image = old.image;
+        record.reference = old.reference.clone();
     }
-    if ctx.is_some() || !record_path.is_file() {
+    let inputs_moved = previous.is_none_or(|old| {
+        old.inputs.reference_side != record.inputs.reference_side
+            || old.inputs.frames != record.inputs.frames
+    });
+    if ctx.is_some() || inputs_moved || !record_path.is_file() {
         if let Some(parent) = record_path.parent() {
             fsx::create_dir(parent)?;
         }
@@ -407,13 +520,14 @@ pub fn run_batch(
     let outcomes: Vec<(FrameStatus, Option<String>)> = mine
         .par_iter()
         .zip(actions.par_iter())
-        .map(|(f, action)| {
+        .zip(fingerprints.par_iter())
+        .map(|((f, action), fingerprint)| {
             if *action == Action::Skip {
                 return (FrameStatus::Skipped, None);
             }
             let t = Instant::now();
             let result = match action {
-                Action::Compute => compute_frame(
+                Action::Compute | Action::Recompute => compute_frame(
                     ctx.as_ref().expect("prepared when a frame is computed"),
                     plan,
                     &out,
@@ -421,6 +535,10 @@ pub fn run_batch(
                     &f.title(total),
                     setup.as_ref(),
                     progress,
+                    fingerprint.as_ref().map(|frame| FrameInputs {
+                        frame: frame.clone(),
+                        reference_side: reference_side.clone(),
+                    }),
                 )
                 .map(|()| FrameStatus::Computed),
                 _ => draw_figures(&out, f, &f.title(total), setup.as_ref(), progress)
@@ -461,6 +579,11 @@ pub fn run_batch(
         campaign_frames: total,
         frames: mine.len(),
         computed: count(FrameStatus::Computed),
+        stale: actions
+            .iter()
+            .zip(&outcomes)
+            .filter(|(a, o)| **a == Action::Recompute && o.0 == FrameStatus::Computed)
+            .count(),
         figures_drawn: count(FrameStatus::FiguresDrawn),
         skipped: count(FrameStatus::Skipped),
         failures,
@@ -517,7 +640,9 @@ fn campaign_title(config_file: &Path) -> String {
     format!("Campaign {name}")
 }
 
-/// Computes, writes and draws one frame; the error is the failure reason.
+/// Computes, writes and draws one frame; the error is the failure reason. `inputs` (what the
+/// frame is computed from, fingerprinted before it was read) is recorded once the outputs are
+/// written (without it, the next run computes the frame again).
 fn compute_frame(
     ctx: &ReferenceContext,
     plan: &Plan,
@@ -526,12 +651,18 @@ fn compute_frame(
     title: &str,
     setup: Option<&FigureSetup>,
     progress: &dyn Progress,
+    inputs: Option<FrameInputs>,
 ) -> Result<(), String> {
     fsx::remove_stale_temporaries(out, &f.stem);
-    let _ = std::fs::remove_file(out.join(&f.stem).join(crate::figures::FIGURES_RECORD));
+    let dir = out.join(&f.stem);
+    let _ = std::fs::remove_file(dir.join(crate::figures::FIGURES_RECORD));
+    let _ = std::fs::remove_file(dir.join(inputs::FRAME_INPUTS));
     let result = process_frame(ctx, plan, &f.path).map_err(|e| e.to_string())?;
     write_frame(out, &result).map_err(|e| e.to_string())?;
     drop(result);
+    if let Some(inputs) = inputs {
+        inputs.write(&dir).map_err(|e| e.to_string())?;
+    }
     draw_figures(out, f, title, setup, progress)
 }
 
@@ -624,7 +755,8 @@ pub fn merge_campaign(out_dir: &Path, progress: &dyn Progress) -> Result<MergeRe
         });
     };
     for (path, r) in &records[1..] {
-        if let Some(what) = first.differs_from(r) {
+        let changed = || first.changed_inputs(r).into_iter().next();
+        if let Some(what) = first.differs_from(r).or_else(changed) {
             return Err(BatchError::RecordsDisagree {
                 first: first_path.clone(),
                 second: path.clone(),
@@ -728,6 +860,15 @@ pub fn merge_campaign(out_dir: &Path, progress: &dyn Progress) -> Result<MergeRe
             .filter_map(|(p, _)| p.file_name().map(|n| n.to_string_lossy().into_owned()))
             .collect();
         merged.inputs.gradients = paths.clone();
+        merged.inputs.frames = paths
+            .iter()
+            .filter_map(|p| {
+                records
+                    .iter()
+                    .find_map(|(_, r)| r.inputs.frames.iter().find(|f| &f.path == p))
+                    .cloned()
+            })
+            .collect();
         merged.write(&run_path)?;
     }
     Ok(MergeReport {

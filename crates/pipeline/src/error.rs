@@ -73,6 +73,18 @@ pub enum ConfigError {
         file: PathBuf,
     },
 
+    /// A path named by the configuration (or matched by one of its patterns) exists but is not
+    /// what the key needs, or cannot be examined: a folder where a file is needed, a file
+    /// where a folder is needed, a broken symbolic link or a link loop.
+    #[error("{}: {key}: {}: {problem}", path.display(), file.display())]
+    BadPath {
+        path: PathBuf,
+        key: String,
+        file: PathBuf,
+        /// What is wrong ("is a folder, not a file", "cannot be examined: ...").
+        problem: String,
+    },
+
     /// A folder named by the configuration could not be listed.
     #[error("{}: {key}: cannot list {}: {source}", path.display(), dir.display())]
     ListDir {

@@ -5,7 +5,7 @@ use crate::config::{
     Quantities, ReferenceFrom, ReferencePosition, UncertaintyConfig,
 };
 use crate::error::ConfigError;
-use crate::files::list_matching;
+use crate::files::{PathKind, Want, list_inputs, output_dir_problem};
 use crate::jobs::{MAX_JOBS, resolve_jobs};
 use crate::load::load_config;
 use crate::suggest::did_you_mean;
@@ -59,6 +59,10 @@ pub struct Plan {
     pub output: OutputPlan,
     /// Worker threads (`run.jobs`, 0 resolved to the available CPUs).
     pub jobs: usize,
+    /// Things that do not stop a run but are probably not meant (a pattern that also matches
+    /// the reference image, a folder named like a frame), each naming the configuration file,
+    /// the key and the file. `bostrack check` and `bostrack run` print them.
+    pub warnings: Vec<String>,
 }
 
 impl Plan {
@@ -71,7 +75,10 @@ impl Plan {
     /// Validates a parsed configuration; relative paths are resolved against the folder of
     /// `config_file` (which is not read).
     pub fn from_config(cfg: PipelineConfig, config_file: &Path) -> Result<Plan, ConfigError> {
-        let v = Validator { file: config_file };
+        let mut v = Validator {
+            file: config_file,
+            warnings: Vec::new(),
+        };
         v.check_values(&cfg)?;
         let invalid_if = v.invalid_if(&cfg.matching)?;
 
@@ -140,8 +147,14 @@ impl Plan {
             Some(p)
         };
 
+        v.warn_overlaps(&reference, mask.as_deref(), &stack, &gradients, &cfg);
+
+        let out_dir = base.join(&cfg.output.dir);
+        if let Some(problem) = output_dir_problem(&out_dir) {
+            return Err(v.bad_path("output.dir", &out_dir, problem));
+        }
         let output = OutputPlan {
-            dir: base.join(&cfg.output.dir),
+            dir: out_dir,
             figures: cfg.output.figures.clone(),
             figure_formats: cfg.output.figure_formats.clone(),
             overwrite: cfg.output.overwrite,
@@ -161,6 +174,7 @@ impl Plan {
             output,
             jobs: resolve_jobs(cfg.run.jobs),
             config: cfg,
+            warnings: v.warnings,
         })
     }
 }
@@ -174,6 +188,7 @@ pub const MAX_FIT_ITERATIONS: u32 = 1000;
 
 struct Validator<'a> {
     file: &'a Path,
+    warnings: Vec<String>,
 }
 
 impl Validator<'_> {
@@ -190,6 +205,70 @@ impl Validator<'_> {
             path: self.file.to_path_buf(),
             key: key.into(),
             file: file.to_path_buf(),
+        }
+    }
+
+    fn bad_path(&self, key: &str, file: &Path, problem: String) -> ConfigError {
+        ConfigError::BadPath {
+            path: self.file.to_path_buf(),
+            key: key.into(),
+            file: file.to_path_buf(),
+            problem,
+        }
+    }
+
+    /// Warns about a stack or gradient pattern that also matches the reference image, the mask
+    /// or (gradients) a no-flow image: such a file would be processed as a frame of the other
+    /// kind.
+    fn warn_overlaps(
+        &mut self,
+        reference: &ReferenceImage,
+        mask: Option<&Path>,
+        stack: &[PathBuf],
+        gradients: &[PathBuf],
+        cfg: &PipelineConfig,
+    ) {
+        let same = |a: &Path, b: &Path| match (a.canonicalize(), b.canonicalize()) {
+            (Ok(a), Ok(b)) => a == b,
+            _ => a == b,
+        };
+        let mut others: Vec<(&str, &Path)> = Vec::new();
+        if let ReferenceImage::File(p) = reference {
+            others.push(("the reference image", p));
+        }
+        if let Some(m) = mask {
+            others.push(("the mask", m));
+        }
+        let lists = [
+            (
+                "input.stack_glob",
+                &cfg.input.stack_glob,
+                stack,
+                "no-flow image",
+            ),
+            (
+                "input.gradient_glob",
+                &cfg.input.gradient_glob,
+                gradients,
+                "gradient frame",
+            ),
+        ];
+        for (key, glob, list, kind) in lists {
+            for p in list {
+                let hit = others.iter().find(|(_, o)| same(p, o)).map(|(w, _)| *w);
+                let hit = hit.or_else(|| {
+                    (kind == "gradient frame" && stack.iter().any(|s| same(p, s)))
+                        .then_some("a no-flow stack image")
+                });
+                if let Some(what) = hit {
+                    self.warnings.push(format!(
+                        "{}: {key}: `{glob}` also matches {what} {}, which will be processed \
+                         as a {kind} too; narrow the pattern or move the file",
+                        self.file.display(),
+                        p.display()
+                    ));
+                }
+            }
         }
     }
 
@@ -335,35 +414,59 @@ impl Validator<'_> {
     }
 
     fn require_file(&self, key: &str, p: &Path) -> Result<(), ConfigError> {
-        if p.is_file() {
-            Ok(())
-        } else {
-            Err(self.not_found(key, p))
-        }
+        self.require(key, p, Want::File)
     }
 
     fn require_dir(&self, key: &str, p: &Path) -> Result<(), ConfigError> {
-        if p.is_dir() {
-            Ok(())
-        } else {
-            Err(self.not_found(key, p))
+        self.require(key, p, Want::Dir)
+    }
+
+    /// `p` is a `want`: else "not found" when nothing is there, or what it is instead.
+    fn require(&self, key: &str, p: &Path, want: Want) -> Result<(), ConfigError> {
+        let kind = PathKind::of(p);
+        if let PathKind::Missing = kind {
+            return Err(self.not_found(key, p));
+        }
+        match kind.problem(want) {
+            None => Ok(()),
+            Some(problem) => Err(self.bad_path(key, p, problem)),
         }
     }
 
+    /// The files of `dir` matching `glob`: folders that match are skipped with a warning, and
+    /// a match that is neither a file nor a folder (a broken link, a link loop) is an error.
     fn list(
-        &self,
+        &mut self,
         dir_key: &str,
         glob_key: &str,
         dir: &Path,
         glob: &str,
     ) -> Result<Vec<PathBuf>, ConfigError> {
         self.require_dir(dir_key, dir)?;
-        let files = list_matching(dir, glob).map_err(|source| ConfigError::ListDir {
+        let listing = list_inputs(dir, glob).map_err(|source| ConfigError::ListDir {
             path: self.file.to_path_buf(),
             key: dir_key.into(),
             dir: dir.to_path_buf(),
             source,
         })?;
+        if let Some((p, problem)) = listing.unusable.into_iter().next() {
+            return Err(self.bad_path(
+                glob_key,
+                &p,
+                format!(
+                    "matches `{glob}` but {problem}; repair or remove it, or narrow {glob_key}"
+                ),
+            ));
+        }
+        for p in &listing.folders {
+            self.warnings.push(format!(
+                "{}: {glob_key}: `{glob}` matches the folder {}, which is skipped (only files are \
+                 inputs)",
+                self.file.display(),
+                p.display()
+            ));
+        }
+        let files = listing.files;
         if files.is_empty() {
             return Err(ConfigError::NoMatch {
                 path: self.file.to_path_buf(),
@@ -407,6 +510,14 @@ mod tests {
         Plan::load(&file)
     }
 
+    /// The file names of a plan's gradient frames, in order.
+    fn frame_names(p: &Plan) -> Vec<&str> {
+        p.gradients
+            .iter()
+            .map(|g| g.file_name().unwrap().to_str().unwrap())
+            .collect()
+    }
+
     const BASE: &str = "[input]\ndir = \"../camp\"\ngradient_dir = \"grad\"\n";
 
     #[test]
@@ -422,11 +533,7 @@ mod tests {
             p.reference,
             ReferenceImage::File(camp.join("reference.tif"))
         );
-        let names: Vec<_> = p
-            .gradients
-            .iter()
-            .map(|g| g.file_name().unwrap().to_str().unwrap())
-            .collect();
+        let names = frame_names(&p);
         assert_eq!(
             names,
             ["frame1.tif", "frame2.tif", "frame9.tif", "frame10.tif"]
@@ -517,6 +624,156 @@ mod tests {
         assert!(
             matches!(&e, ConfigError::NotFound { key, .. } if key == "input.dir"),
             "{e}"
+        );
+    }
+
+    /// The `ConfigError::BadPath` of `key` that `extra` after [`BASE`] gives: (file, problem).
+    fn bad_path(root: &Path, extra: &str, key: &str) -> (PathBuf, String) {
+        match plan(root, &format!("{BASE}{extra}")) {
+            Err(ConfigError::BadPath {
+                key: k,
+                file,
+                problem,
+                ..
+            }) if k == key => (file, problem),
+            other => panic!("{extra}: not a bad path for {key}: {other:?}"),
+        }
+    }
+
+    #[test]
+    fn folders_files_and_link_loops_are_not_reported_as_missing() {
+        let root = campaign();
+        let camp = root.path().join("camp");
+        // A folder where a file is needed, a file where a folder is needed.
+        fs::create_dir(camp.join("ref.tif")).unwrap();
+        let (file, problem) = bad_path(root.path(), "reference = \"ref.tif\"\n", "input.reference");
+        assert!(
+            file.ends_with("ref.tif") && problem == "is a folder, not a file",
+            "{problem}"
+        );
+        let (_, problem) = bad_path(root.path(), "mask = \"grad\"\n", "input.mask");
+        assert_eq!(problem, "is a folder, not a file");
+        let (_, problem) = bad_path(root.path(), "stack_dir = \"mask.png\"\n", "input.stack_dir");
+        assert_eq!(problem, "is a file, not a folder");
+        let e = plan(root.path(), &format!("{BASE}reference = \"ref.tif\"\n")).unwrap_err();
+        let msg = e.to_string();
+        assert!(
+            msg.contains("pipeline.toml: input.reference: ")
+                && msg.contains("ref.tif: is a folder, not a file")
+                && !msg.contains("not found"),
+            "{msg}"
+        );
+
+        // An output folder that is a file, or lies under one.
+        let (file, problem) = bad_path(
+            root.path(),
+            "[output]\ndir = \"../camp/mask.png\"\n",
+            "output.dir",
+        );
+        assert!(
+            file.ends_with("mask.png") && problem == "is a file, not a folder",
+            "{problem}"
+        );
+        bad_path(
+            root.path(),
+            "[output]\ndir = \"../camp/mask.png/out\"\n",
+            "output.dir",
+        );
+        plan(root.path(), &format!("{BASE}[output]\ndir = \"new/out\"\n")).unwrap();
+
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::symlink;
+            symlink("loop.tif", camp.join("loop.tif")).unwrap();
+            let (_, problem) =
+                bad_path(root.path(), "reference = \"loop.tif\"\n", "input.reference");
+            assert!(problem.starts_with("cannot be examined: "), "{problem}");
+            symlink("gone.tif", camp.join("dangling.tif")).unwrap();
+            let (_, problem) = bad_path(
+                root.path(),
+                "reference = \"dangling.tif\"\n",
+                "input.reference",
+            );
+            assert_eq!(problem, "is a symbolic link whose target does not exist");
+            symlink("frame11.tif", camp.join("grad/frame11.tif")).unwrap();
+            let (file, problem) = bad_path(root.path(), "", "input.gradient_glob");
+            assert!(file.ends_with("grad/frame11.tif"), "{}", file.display());
+            assert!(
+                problem.starts_with("matches `*.tif` but cannot be examined: ")
+                    && problem.ends_with("narrow input.gradient_glob"),
+                "{problem}"
+            );
+            fs::remove_file(camp.join("grad/frame11.tif")).unwrap();
+            let (_, problem) = bad_path(
+                root.path(),
+                "[output]\ndir = \"../camp/loop.tif\"\n",
+                "output.dir",
+            );
+            assert!(problem.starts_with("cannot be examined: "), "{problem}");
+        }
+    }
+
+    #[test]
+    fn overlapping_patterns_and_matching_folders_are_warned_about() {
+        let root = campaign();
+        let camp = root.path().join("camp");
+        let p = plan(root.path(), BASE).unwrap();
+        assert!(p.warnings.is_empty(), "{:?}", p.warnings);
+        // The reference and the mask beside the frames, a folder named like a frame.
+        fs::copy(camp.join("reference.tif"), camp.join("grad/reference.tif")).unwrap();
+        fs::create_dir(camp.join("grad/frame0.tif")).unwrap();
+        let text = format!(
+            "{BASE}reference = \"grad/reference.tif\"\nmask = \"grad/readme.txt\"\n\
+             gradient_glob = \"*\"\n"
+        );
+        let p = plan(root.path(), &text).unwrap();
+        let names = frame_names(&p);
+        assert_eq!(
+            names,
+            [
+                "frame1.tif",
+                "frame2.tif",
+                "frame9.tif",
+                "frame10.tif",
+                "readme.txt",
+                "reference.tif"
+            ],
+            "warned, not changed"
+        );
+        assert_eq!(p.warnings.len(), 3, "{:#?}", p.warnings);
+        let has = |parts: &[&str]| {
+            p.warnings
+                .iter()
+                .any(|w| parts.iter().all(|x| w.contains(x)))
+        };
+        assert!(
+            has(&[
+                "pipeline.toml: input.gradient_glob: `*` also matches the reference image",
+                "grad/reference.tif",
+                "as a gradient frame"
+            ]),
+            "{:#?}",
+            p.warnings
+        );
+        assert!(
+            has(&["also matches the mask", "readme.txt"]),
+            "{:#?}",
+            p.warnings
+        );
+        assert!(
+            has(&["matches the folder", "frame0.tif", "skipped"]),
+            "{:#?}",
+            p.warnings
+        );
+        // A stack pattern that takes in the reference.
+        fs::remove_dir(camp.join("grad/frame0.tif")).unwrap();
+        let text = format!("{BASE}reference = \"stack/s1.tif\"\n");
+        let p = plan(root.path(), &text).unwrap();
+        assert_eq!(p.warnings.len(), 1, "{:#?}", p.warnings);
+        assert!(
+            p.warnings[0].contains("input.stack_glob") && p.warnings[0].contains("no-flow image"),
+            "{}",
+            p.warnings[0]
         );
     }
 

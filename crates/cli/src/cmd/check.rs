@@ -17,7 +17,11 @@ that make a displacement invalid (`[match] keep_flagged` taken out), the output 
 number of worker threads.\n\n\
 Relative paths are resolved against the folder of the configuration file. Unknown keys, \
 values out of range, missing files and patterns that match nothing are errors (exit 1) that \
-name the file, and for unknown keys the line and the closest valid key."
+name the file, and for unknown keys the line and the closest valid key; a path that is a folder \
+where a file is needed (or a file where a folder is needed, also for output.dir), a broken \
+symbolic link or a link loop is named with what it is. Warnings (printed on stderr and listed \
+under \"warnings\") do not fail the check: a pattern that also matches the reference image, \
+the mask or a no-flow image, and folders whose names match a pattern (skipped)."
 )]
 pub(crate) struct CheckArgs {
     /// Campaign configuration file.
@@ -27,6 +31,9 @@ pub(crate) struct CheckArgs {
 
 pub(crate) fn run(args: CheckArgs) -> anyhow::Result<Outcome> {
     let plan = Plan::load(&args.config)?;
+    for w in &plan.warnings {
+        eprintln!("warning: {w}");
+    }
     let reference = match &plan.reference {
         ReferenceImage::File(p) => json!(p),
         ReferenceImage::StackMean => json!("stack-mean"),
@@ -45,6 +52,7 @@ pub(crate) fn run(args: CheckArgs) -> anyhow::Result<Outcome> {
             "overwrite": plan.output.overwrite,
         },
         "jobs": plan.jobs,
+        "warnings": plan.warnings,
     });
     println!("{}", serde_json::to_string_pretty(&out)?);
     Ok(Outcome::Done)

@@ -38,6 +38,12 @@ recomputes everything. Files are written under temporary names and renamed, so a
 leaves no half-written frame. A folder holding results of another configuration is refused
 (exit 1) unless --force.
 
+Changed inputs: the run record (run.toml) and each frame's <frame>/inputs.json hold every
+input file's size, modification time and content hash (XXH3-128). A rerun recomputes a frame
+whose gradient image changed (named in a note); a changed reference image, mask or no-flow
+image invalidates every frame, so the run is refused (exit 1, naming the files) unless --force.
+A file whose size and modification time are unchanged is not read again.
+
 A frame that fails (unreadable file, no dots) is listed in failures.json and on stderr, the
 others finish, and the exit code is 2.
 
@@ -46,7 +52,8 @@ those frames and DIR/shards/shard-K-of-N.{toml,json}; `bostrack merge DIR` then 
 campaign files (docs/cluster.md).
 
 Progress: a bar with frames done, frames/s and ETA when stderr is a terminal, a line every few
-seconds otherwise; --quiet prints only failures and errors.";
+seconds otherwise; --quiet prints only warnings (e.g. a gradient pattern that also matches the
+reference image), failures and errors.";
 
 /// Process a campaign.
 #[derive(Debug, Args)]
@@ -69,7 +76,7 @@ pub(crate) struct RunArgs {
     /// numbered from 1 in natural order. Combine the shards with `bostrack merge DIR`.
     #[arg(long, value_name = "K/N")]
     shard: Option<Shard>,
-    /// Print no progress; only failures and errors.
+    /// Print no progress; only warnings, failures and errors.
     #[arg(short = 'q', long)]
     quiet: bool,
     #[command(flatten)]
@@ -78,6 +85,9 @@ pub(crate) struct RunArgs {
 
 pub(crate) fn run(args: RunArgs) -> anyhow::Result<Outcome> {
     let plan = Plan::load(&args.config)?;
+    for w in &plan.warnings {
+        eprintln!("warning: {w}");
+    }
     let pool = args.jobs.pool(plan.config.run.jobs)?;
     let options = BatchOptions {
         out_dir: args.out.clone(),
@@ -117,8 +127,13 @@ fn summary_line(r: &BatchReport, threads: usize) -> String {
         format!("{} of {} frames", r.frames, r.campaign_frames)
     };
     let rss = peak_rss_mib().map_or(String::new(), |m| format!(", peak RSS {m:.0} MiB"));
+    let stale = if r.stale > 0 {
+        format!(" ({} of them again, as their inputs changed)", r.stale)
+    } else {
+        String::new()
+    };
     format!(
-        "{share}: {} computed, {} only missing figures drawn, {} complete already, {} failed, in {:.1} s \
+        "{share}: {} computed{stale}, {} only missing figures drawn, {} complete already, {} failed, in {:.1} s \
          ({rate:.2} frames/s, {threads} threads{rss}); outputs in {}",
         r.computed,
         r.figures_drawn,

@@ -3,6 +3,7 @@
 //! configuration, so every output folder says what produced it.
 
 use super::fsx::{read, write_atomic};
+use super::inputs::Fingerprint;
 use super::{BatchError, Shard};
 use crate::config::{Figure, FigureFormat, PipelineConfig};
 use crate::files::natural_cmp;
@@ -43,6 +44,13 @@ pub(crate) struct Inputs {
     pub stack: Vec<PathBuf>,
     /// Gradient frames, natural order (frame 1 first).
     pub gradients: Vec<PathBuf>,
+    /// Size, modification time and content hash of the reference image, the mask and the
+    /// no-flow images, in that order: every frame's results depend on them.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub reference_side: Vec<Fingerprint>,
+    /// The same of the gradient frames of the run (of a shard: its own), natural order.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub frames: Vec<Fingerprint>,
 }
 
 /// Size of the images (px).
@@ -118,6 +126,8 @@ impl RunRecord {
                 mask: plan.mask.as_deref().map(canonical),
                 stack: plan.stack.iter().map(|p| canonical(p)).collect(),
                 gradients: plan.gradients.iter().map(|p| canonical(p)).collect(),
+                reference_side: Vec::new(),
+                frames: Vec::new(),
             },
             config,
             reference: None,
@@ -169,6 +179,66 @@ impl RunRecord {
             .zip(other.result_key())
             .find(|(a, b)| a != b)
             .map(|(a, _)| a.0)
+    }
+
+    /// Fingerprints the reference side (reference image, mask, no-flow images) into
+    /// `inputs.reference_side`, taking over the hash of a file that `known` records with the
+    /// same size and modification time.
+    pub fn fingerprint_reference_side(&mut self, known: &[&RunRecord]) -> Result<(), BatchError> {
+        let i = &self.inputs;
+        let files: Vec<PathBuf> = i
+            .reference
+            .iter()
+            .chain(&i.mask)
+            .chain(&i.stack)
+            .cloned()
+            .collect();
+        self.inputs.reference_side = files
+            .iter()
+            .map(|p| {
+                let old = known
+                    .iter()
+                    .flat_map(|r| &r.inputs.reference_side)
+                    .find(|f| &f.path == p);
+                Fingerprint::of(p, old).map_err(|source| BatchError::Read {
+                    path: p.clone(),
+                    source,
+                })
+            })
+            .collect::<Result<_, _>>()?;
+        Ok(())
+    }
+
+    /// The reference-side files whose content differs between `self` and `old`, each named
+    /// with what changed (files that only one of them records are not compared: a changed
+    /// list of files is a [`RunRecord::differs_from`] difference).
+    pub fn changed_inputs(&self, old: &RunRecord) -> Vec<String> {
+        self.inputs
+            .reference_side
+            .iter()
+            .filter_map(|now| {
+                let before = old
+                    .inputs
+                    .reference_side
+                    .iter()
+                    .find(|f| f.path == now.path)?;
+                (!now.same_content(before)).then(|| now.change_from(before))
+            })
+            .collect()
+    }
+
+    /// Digest of what decides every frame's results on the reference side: the
+    /// result-deciding configuration and files ([`RunRecord::differs_from`]) and the content
+    /// hashes of the reference-side files. Recorded in each frame's `inputs.json`.
+    pub fn reference_side_key(&self) -> String {
+        let hashes: Vec<(&Path, &str)> = self
+            .inputs
+            .reference_side
+            .iter()
+            .map(|f| (f.path.as_path(), f.xxh3_128.as_str()))
+            .collect();
+        let text = serde_json::to_string(&(self.result_key(), hashes)).unwrap_or_default();
+        format!("{:032x}", xxhash_rust::xxh3::xxh3_128(text.as_bytes()))
     }
 
     /// The figures and formats recorded in `config.output`.
