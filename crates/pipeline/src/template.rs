@@ -244,7 +244,7 @@ pub(crate) const SECTIONS: &[SectionDoc] = &[
     SectionDoc {
         name: "uncertainty",
         doc: "Per-dot displacement uncertainty: u_d = sqrt(u_refpos^2 + u_grad^2), u_grad = AR * u_ref\n\
-              (docs/CONVENTIONS.md, ../shared/papers/NOTES.md section 2).",
+              (docs/CONVENTIONS.md; the amplification ratio: docs/theory.md, Eq. 37).",
         keys: &[
             key(
                 "common_mode",
@@ -260,7 +260,7 @@ pub(crate) const SECTIONS: &[SectionDoc] = &[
                 "ar_variant",
                 "Amplification ratio: \"bounds\" (the ratio of the two fits' own Cramer-Rao bounds:\n\
                  right under shot noise too; needs [fit] bound = true), \"notes\" (the closed form\n\
-                 of NOTES.md section 2 from the fitted shapes: right under read noise alone) or\n\
+                 of docs/theory.md, Eq. 37, from the fitted shapes: right under read noise alone) or\n\
                  \"published\" (the published reference code, only to reproduce published numbers).",
             ),
         ],
