@@ -9,8 +9,7 @@ use crate::map::Quantity;
 use crate::render::{Content, Figure};
 use crate::style::{LABEL_SIZE, LEGEND_SIZE, TICK_SIZE, series_colour, text};
 use crate::util::{
-    fmt_count, fmt_fixed, fmt_num, median, percentile, sorted_finite, tick_decimals,
-    widen_zero_range,
+    fmt_count, fmt_fixed, fmt_num, percentile, sorted_finite, tick_decimals, widen_zero_range,
 };
 
 /// One histogram series: a legend label and its values (non-finite values are counted in the
@@ -136,14 +135,15 @@ pub fn histogram(
                     counts[k] += 1;
                 }
             }
-            let sorted = sorted_finite(s.values.iter().copied());
+            let mut finite = sorted_finite(s.values.iter().copied());
+            let median = bostrack_core::median(&mut finite);
             Binned {
                 label: s.label.to_string(),
                 counts,
-                n_finite: sorted.len(),
-                non_finite: s.values.len() - sorted.len(),
+                n_finite: finite.len(),
+                non_finite: s.values.len() - finite.len(),
                 beyond,
-                median: median(&sorted),
+                median: (!median.is_nan()).then_some(median),
             }
         })
         .collect();
