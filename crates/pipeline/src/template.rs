@@ -280,9 +280,10 @@ pub(crate) const SECTIONS: &[SectionDoc] = &[
             key(
                 "figures",
                 "Figures to draw. Per frame, into DIR/<frame>/: \"displacement\" (arrows over |d|),\n\
-                 \"uncertainty\" (map of |u_d|), \"amplification\" (map of |AR|), \"histograms\"\n\
-                 (u_ref and u_grad, |AR|). Per campaign, into DIR/: \"campaign\" (median |d| and\n\
-                 median |u_d| against the frame number), \"detections\" (the reference dots).",
+                 \"uncertainty\" (map of |u_d|), \"amplification\" (map of max(AR_x, AR_y)),\n\
+                 \"histograms\" (|u_ref| and |u_grad|, max(AR_x, AR_y)). Per campaign, into DIR/:\n\
+                 \"campaign\" (median |d| and median |u_d| against the frame number),\n\
+                 \"detections\" (the reference dots).",
             ),
             key(
                 "figure_formats",
