@@ -443,3 +443,19 @@ fn detections_figure(
         &bf::MapOptions::default(),
     )
 }
+
+#[cfg(test)]
+mod tests {
+    use super::larger;
+
+    /// The AR figures' per-dot value is 1 for a dot amplified on neither axis (the norm
+    /// √(AR_x² + AR_y²) is √2 there), follows the more amplified axis, and is unknown when
+    /// either axis is.
+    #[test]
+    fn ar_shown_is_the_larger_axis() {
+        assert_eq!(larger(1.0, 1.0), 1.0);
+        assert_eq!(larger(1.0, 1.3), 1.3);
+        assert_eq!(larger(1.2, 0.9), 1.2);
+        assert!(larger(f64::NAN, 2.0).is_nan() && larger(2.0, f64::NAN).is_nan());
+    }
+}
