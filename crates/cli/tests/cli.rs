@@ -620,22 +620,13 @@ fn synth_is_deterministic_for_a_seed_and_moves_dots_by_the_field() {
     assert_fails_with(&o, &["not empty", "--force"]);
 }
 
-/// Parses a CSV file into its header and rows.
+/// Parses a CSV file (RFC 4180 quoting) into its header and rows.
 fn read_csv(path: &Path) -> (Vec<String>, Vec<Vec<String>>) {
-    let text = std::fs::read_to_string(path).unwrap();
-    let mut lines = text.lines();
-    let header = lines
-        .next()
-        .unwrap()
-        .split(',')
-        .map(str::to_owned)
-        .collect();
-    (
-        header,
-        lines
-            .map(|l| l.split(',').map(str::to_owned).collect())
-            .collect(),
-    )
+    let mut r = csv::Reader::from_path(path).unwrap();
+    let strings = |rec: &csv::StringRecord| rec.iter().map(str::to_owned).collect::<Vec<_>>();
+    let header = strings(r.headers().unwrap());
+    let rows = r.records().map(|rec| strings(&rec.unwrap())).collect();
+    (header, rows)
 }
 
 #[test]
@@ -691,7 +682,11 @@ fn locate_finds_every_dot_at_its_true_position_within_the_bound() {
         ]
     );
     let col = |h: &[String], name: &str| h.iter().position(|c| c == name).unwrap();
-    let f = |row: &[String], k: usize| row[k].parse::<f64>().unwrap();
+    // an unknown value is an empty field (not fitted, not estimated)
+    let f = |row: &[String], k: usize| match row[k].as_str() {
+        "" => f64::NAN,
+        v => v.parse::<f64>().unwrap(),
+    };
     let (tx, ty, tcx, tcy, tflags) = (
         col(&th, "x"),
         col(&th, "y"),
@@ -768,6 +763,108 @@ fn locate_finds_every_dot_at_its_true_position_within_the_bound() {
         (0.9..1.1).contains(&median),
         "median reported/exact bound {median}"
     );
+}
+
+/// One convention in every table: `locate`'s CSV, a run's `dots.csv` and `campaign.csv` write
+/// an unknown value as an empty field (never `NaN` or `inf`) and every known number with 6
+/// decimals. Unknown here by construction: rho under the three-point Gaussian (which does not
+/// estimate it), and every stack uncertainty of a campaign without a no-flow stack.
+#[test]
+fn every_table_writes_unknown_values_as_empty_fields() {
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path();
+    let o = bostrack(
+        &[
+            "synth",
+            "-o",
+            "s",
+            "--width",
+            "128",
+            "--height",
+            "128",
+            "--bits",
+            "16",
+            "--field",
+            "bump:30,16",
+            "--frames",
+            "1",
+            "--stack",
+            "0",
+            "--seed",
+            "5",
+        ],
+        root,
+    );
+    assert_eq!(code(&o), 0, "{}", stderr(&o));
+    let o = bostrack(
+        &[
+            "locate",
+            "s/reference.tif",
+            "--estimator",
+            "tpg",
+            "-o",
+            "tpg.csv",
+        ],
+        root,
+    );
+    assert_eq!(code(&o), 0, "{}", stderr(&o));
+    std::fs::write(
+        root.join("p.toml"),
+        "[input]\ndir = \"s\"\nstack_dir = \"\"\n[output]\ndir = \"out\"\nfigures = []\n",
+    )
+    .unwrap();
+    let o = bostrack(&["run", "p.toml"], root);
+    assert_eq!(code(&o), 0, "{}", stderr(&o));
+
+    let six_decimals = |v: &str| {
+        v.parse::<f64>().is_ok_and(f64::is_finite)
+            && v.split_once('.').is_some_and(|(_, d)| d.len() == 6)
+    };
+    // (file, a column that must be empty in every row, columns that must be numbers in some)
+    let cases = [
+        ("tpg.csv", "rho", &["x", "sigma_x", "crlb_x"][..]),
+        (
+            "out/frame_01/dots.csv",
+            "u_ref_x",
+            &["x_ref", "dx", "ar_x"][..],
+        ),
+        (
+            "out/campaign.csv",
+            "medians.abs_u_d",
+            &["medians.abs_d"][..],
+        ),
+    ];
+    for (file, empty, numbers) in cases {
+        let (header, rows) = read_csv(&root.join(file));
+        assert!(!rows.is_empty(), "{file}");
+        let col = |name: &str| {
+            header
+                .iter()
+                .position(|c| c == name)
+                .unwrap_or_else(|| panic!("{file}: no column {name} in {header:?}"))
+        };
+        for row in &rows {
+            assert_eq!(row.len(), header.len(), "{file}: {row:?}");
+            // no NaN, inf or infinity, in any spelling a parser takes
+            assert!(
+                row.iter()
+                    .all(|c| c.parse::<f64>().map_or(true, f64::is_finite)),
+                "{file}: {row:?}"
+            );
+            assert_eq!(row[col(empty)], "", "{file}: {empty} in {row:?}");
+        }
+        for name in numbers {
+            let k = col(name);
+            assert!(
+                rows.iter().any(|r| six_decimals(&r[k])),
+                "{file}: no number in {name}"
+            );
+            assert!(
+                rows.iter().all(|r| r[k].is_empty() || six_decimals(&r[k])),
+                "{file}: {name} not in the one number format"
+            );
+        }
+    }
 }
 
 #[test]

@@ -19,6 +19,8 @@ mod flags;
 mod image;
 mod lattice;
 mod noise;
+mod stats;
+pub mod table;
 mod window;
 
 #[doc(hidden)]
@@ -29,4 +31,5 @@ pub use flags::DotFlags;
 pub use image::{Image, ImageMeta, Mask, Photometric, SampleFormat, ShapeError};
 pub use lattice::Lattice;
 pub use noise::NoiseModel;
+pub use stats::median;
 pub use window::{Seed, Window};

@@ -2,6 +2,8 @@
 
 use crate::pair::{PairDot, usable};
 use bostrack_core::DotFit;
+// a float cell by the one convention of every table: unknown is the empty field
+use bostrack_core::table::optional as num;
 
 /// Column names of the pair CSV, in order. Positions, displacements, sigmas and uncertainties
 /// in px, amplitudes in counts, ρ and AR dimensionless; `x_ref, y_ref` is the position the
@@ -40,15 +42,9 @@ pub const COLUMNS: [&str; 30] = [
     "flags",
 ];
 
-/// Decimals of every float column (fixed-point, so the output is deterministic).
-pub const DECIMALS: usize = 6;
-
-fn num(v: Option<f64>) -> String {
-    match v {
-        Some(v) if v.is_finite() => format!("{v:.DECIMALS$}"),
-        _ => String::new(),
-    }
-}
+/// Decimals of every float column: those of every table bostrack writes
+/// ([`bostrack_core::table`]).
+pub const DECIMALS: usize = bostrack_core::table::DECIMALS;
 
 fn pair(v: Option<[f64; 2]>) -> [String; 2] {
     [num(v.map(|a| a[0])), num(v.map(|a| a[1]))]

@@ -1,4 +1,4 @@
-//! Histograms: several series on shared bins (u_ref and u_grad, |AR|).
+//! Histograms: several series on shared bins (u_ref and u_grad, max(AR_x, AR_y)).
 
 use plotters::coord::Shift;
 use plotters::prelude::*;
@@ -9,8 +9,7 @@ use crate::map::Quantity;
 use crate::render::{Content, Figure};
 use crate::style::{LABEL_SIZE, LEGEND_SIZE, TICK_SIZE, series_colour, text};
 use crate::util::{
-    fmt_count, fmt_fixed, fmt_num, median, percentile, sorted_finite, tick_decimals,
-    widen_zero_range,
+    fmt_count, fmt_fixed, fmt_num, percentile, sorted_finite, tick_decimals, widen_zero_range,
 };
 
 /// One histogram series: a legend label and its values (non-finite values are counted in the
@@ -136,14 +135,15 @@ pub fn histogram(
                     counts[k] += 1;
                 }
             }
-            let sorted = sorted_finite(s.values.iter().copied());
+            let mut finite = sorted_finite(s.values.iter().copied());
+            let median = bostrack_core::median(&mut finite);
             Binned {
                 label: s.label.to_string(),
                 counts,
-                n_finite: sorted.len(),
-                non_finite: s.values.len() - sorted.len(),
+                n_finite: finite.len(),
+                non_finite: s.values.len() - finite.len(),
                 beyond,
-                median: median(&sorted),
+                median: (!median.is_nan()).then_some(median),
             }
         })
         .collect();
@@ -159,8 +159,9 @@ pub fn histogram(
 }
 
 /// Histograms of the reference and gradient position uncertainties of one frame on the same
-/// axes (the paper's Fig. 6c,f). Pass one value per dot (e.g. the x-axis uncertainty, or
-/// `√(u_x² + u_y²)`, as the pipeline documents), in px.
+/// axes (the paper's Fig. 6c,f), in px. Pass one value per dot: the norm of its two axes,
+/// `|u| = √(u_x² + u_y²)` (the figure says so: it is √2 times the per-axis value of a round
+/// dot).
 pub fn uncertainty_histogram(
     u_ref: &[f64],
     u_grad: &[f64],
@@ -169,16 +170,16 @@ pub fn uncertainty_histogram(
     histogram(
         &format!("Position uncertainty — {frame_title}"),
         &Quantity {
-            name: "position uncertainty, 1σ",
+            name: "|u| = √(u_x² + u_y²), 1σ",
             unit: "px",
         },
         &[
             HistSeries {
-                label: "u_ref (reference image)",
+                label: "|u_ref| (reference image)",
                 values: u_ref,
             },
             HistSeries {
-                label: "u_grad (gradient image)",
+                label: "|u_grad| (gradient image)",
                 values: u_grad,
             },
         ],
@@ -186,20 +187,21 @@ pub fn uncertainty_histogram(
     )
 }
 
-/// Histogram of the amplification ratio `|AR|` of one frame, with a reference line at 1.
+/// Histogram of the amplification ratio of one frame as the larger of its two axes,
+/// `max(AR_x, AR_y)` (1: no amplification), with a reference line at 1.
 pub fn ar_histogram(ar: &[f64], frame_title: &str) -> Result<Figure, FigureError> {
     histogram(
         &format!("Amplification ratio — {frame_title}"),
         &Quantity {
-            name: "|AR|",
+            name: "max(AR_x, AR_y)",
             unit: "",
         },
         &[HistSeries {
-            label: "|AR|",
+            label: "max(AR_x, AR_y)",
             values: ar,
         }],
         &HistOptions {
-            markers: vec![(1.0, "|AR| = 1".to_string())],
+            markers: vec![(1.0, "1: no amplification".to_string())],
             ..HistOptions::default()
         },
     )

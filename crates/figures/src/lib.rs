@@ -1,5 +1,5 @@
 //! Figures of bostrack: per-frame maps (displacement field, amplification ratio,
-//! displacement uncertainty), histograms (u_ref and u_grad, |AR|), campaign time series and a
+//! displacement uncertainty), histograms (u_ref and u_grad, max(AR_x, AR_y)), campaign time series and a
 //! generic line/scatter plot for benchmark and theory figures.
 //!
 //! Every figure function takes plain data (no stage-crate types) and returns a [`Figure`],

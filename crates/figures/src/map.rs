@@ -1,4 +1,4 @@
-//! Per-frame maps: displacement field (arrows over |d|), and scalar maps (|AR|, uncertainty).
+//! Per-frame maps: displacement field (arrows over |d|), and scalar maps (max(AR_x, AR_y), uncertainty).
 
 use bostrack_core::Mask;
 use plotters::coord::Shift;
@@ -35,7 +35,7 @@ pub struct MapPoint {
     pub dx: f64,
     /// Displacement y = y_grad − y_ref (px).
     pub dy: f64,
-    /// The scalar of a scalar map (|AR|, |u_d|, …).
+    /// The scalar of a scalar map (max(AR_x, AR_y), |u_d|, …).
     pub value: f64,
     /// The dot's fit and match are usable (status ok, no disqualifying flag).
     pub valid: bool,
@@ -174,17 +174,18 @@ pub fn displacement_map(
     )
 }
 
-/// Map of the amplification ratio `|AR| = √(AR_x² + AR_y²)` per dot (as in Fig. 6 of the
-/// paper; AR per axis from `bostrack_model::amplification_ratio`). `MapPoint::value` holds
-/// `|AR|`. Errors as [`displacement_map`].
+/// Map of the amplification ratio per dot as the larger of its two axes,
+/// `AR_max = max(AR_x, AR_y)` (AR per axis from `bostrack_model::amplification_ratio`; the
+/// paper's Fig. 6b,e): 1 where the gradient image does not amplify the position uncertainty,
+/// whatever the axis. `MapPoint::value` holds `AR_max`. Errors as [`displacement_map`].
 pub fn ar_map(
     points: &[MapPoint],
     frame: &MapFrame<'_>,
     options: &MapOptions,
 ) -> Result<Figure, FigureError> {
-    let title = format!("Amplification ratio |AR| — {}", frame.title);
+    let title = format!("Amplification ratio max(AR_x, AR_y) — {}", frame.title);
     let q = Quantity {
-        name: "|AR|",
+        name: "max(AR_x, AR_y)",
         unit: "",
     };
     build_map(
@@ -193,7 +194,7 @@ pub fn ar_map(
         options,
         &title,
         &q,
-        "|AR| = √(AR_x² + AR_y²)",
+        "max(AR_x, AR_y), 1 = no amplification",
         false,
     )
 }
@@ -269,7 +270,11 @@ struct Arrows {
 const Y_LABEL_W: u32 = 72;
 const X_LABEL_H: u32 = 52;
 const MARGIN: u32 = 10;
-const LEGEND_H: u32 = 66;
+/// The legend: first text x, line height and the padding around its lines (px); its height is
+/// [`MapFigure::legend_height`].
+const LEGEND_X: i32 = 14;
+const LEGEND_LINE_H: i32 = 24;
+const LEGEND_PAD: u32 = 14;
 /// Default plot height (px) of a map.
 const PLOT_H: f64 = 700.0;
 
@@ -378,8 +383,6 @@ fn build_map(
         (pw, ph) = (300.0, (300.0 * h / w).min(1400.0));
     }
     let fig_w = Y_LABEL_W + pw.round() as u32 + BAR_PANEL_W + 2 * MARGIN;
-    let fig_h = TITLE_H + MARGIN + ph.round().max(100.0) as u32 + X_LABEL_H + LEGEND_H;
-
     let map = MapFigure {
         img_w: w,
         img_h: h,
@@ -393,6 +396,8 @@ fn build_map(
         mask_rects,
         legend_name: definition.to_string(),
     };
+    let legend_h = map.legend_height(fig_w.max(200));
+    let fig_h = TITLE_H + MARGIN + ph.round().max(100.0) as u32 + X_LABEL_H + legend_h;
     Ok(Figure::new(
         fig_w.max(200),
         fig_h.max(200),
@@ -522,7 +527,8 @@ impl MapFigure {
     {
         let (bw, bh) = body.dim_in_pixel();
         let avail_w = bw as f64 - (Y_LABEL_W + BAR_PANEL_W + 2 * MARGIN) as f64;
-        let avail_h = bh as f64 - (MARGIN + X_LABEL_H + LEGEND_H) as f64;
+        let legend_h = self.legend_height(bw);
+        let avail_h = bh as f64 - (MARGIN + X_LABEL_H + legend_h) as f64;
         if avail_w < 50.0 || avail_h < 50.0 {
             return Err(FigureError::invalid(
                 "map",
@@ -646,55 +652,45 @@ impl MapFigure {
 
         draw_colour_bar(&bar_area, self.scale.as_ref())?;
 
-        let legend_area = body.clone().shrink((0, bh - LEGEND_H), (bw, LEGEND_H));
+        let legend_area = body.clone().shrink((0, bh - legend_h), (bw, legend_h));
         self.draw_legend(&legend_area, zoom)
     }
 
-    fn draw_legend<DB: DrawingBackend>(
-        &self,
-        area: &DrawingArea<DB, Shift>,
-        zoom: f64,
-    ) -> Result<(), FigureError>
-    where
-        DB::ErrorType: 'static,
-    {
-        let (w, _) = area.dim_in_pixel();
-        let mut row = LegendRow::new(area, w, 14, 24);
-        let n_valid = self.dots.len();
-        row.item(
+    /// The legend's entries in order; `true` starts a new line (the arrow scale). The arrow
+    /// scale depends on the display `zoom` (display px per image px).
+    fn legend_entries(&self, zoom: f64) -> Vec<(Marker, String, bool)> {
+        let mut e = vec![(
             Marker::Square(viridis(0.6)),
-            &format!(
+            format!(
                 "valid dot (n = {}), colour: {}",
-                fmt_count(n_valid),
+                fmt_count(self.dots.len()),
                 self.legend_name
             ),
-        )?;
+            false,
+        )];
         if !self.outside.is_empty() {
-            row.item(
-                Marker::Ring,
-                &format!("outside mask (n = {})", fmt_count(self.outside.len())),
-            )?;
+            let label = format!("outside mask (n = {})", fmt_count(self.outside.len()));
+            e.push((Marker::Ring, label, false));
         }
         if !self.invalid.is_empty() {
-            row.item(
-                Marker::Cross,
-                &format!("invalid (n = {})", fmt_count(self.invalid.len())),
-            )?;
+            let label = format!("invalid (n = {})", fmt_count(self.invalid.len()));
+            e.push((Marker::Cross, label, false));
         }
         if !self.mask_rects.is_empty() {
-            row.item(Marker::Square(MASK_GREY), "masked region")?;
+            e.push((
+                Marker::Square(MASK_GREY),
+                "masked region".to_string(),
+                false,
+            ));
         }
         if self.unplaced > 0 {
-            row.item(
-                Marker::None,
-                &format!(
-                    "{} dots without position not drawn",
-                    fmt_count(self.unplaced)
-                ),
-            )?;
+            let label = format!(
+                "{} dots without position not drawn",
+                fmt_count(self.unplaced)
+            );
+            e.push((Marker::None, label, false));
         }
         if let Some(a) = &self.arrows {
-            row.newline();
             // reference arrow about 50 display px long
             let reference = nice_floor(50.0 / (a.scale * zoom));
             let len = (reference * a.scale * zoom).round() as i32;
@@ -707,14 +703,55 @@ impl MapFigure {
                 ),
                 None => String::new(),
             };
-            row.item(
-                Marker::Arrow(len),
-                &format!(
-                    "= {} px displacement (arrows drawn ×{}){sub}",
-                    fmt_num(reference),
-                    fmt_num(a.scale)
-                ),
-            )?;
+            let label = format!(
+                "= {} px displacement (arrows drawn ×{}){sub}",
+                fmt_num(reference),
+                fmt_num(a.scale)
+            );
+            e.push((Marker::Arrow(len), label, true));
+        }
+        e
+    }
+
+    /// Height (px) of the legend under a figure body `body_w` px wide: as many lines as the
+    /// entries take when laid out as [`LegendRow`] does (text measured with the same font; the
+    /// zoom, which only changes the arrow's length and scale text, taken at its largest).
+    fn legend_height(&self, body_w: u32) -> u32 {
+        let avail_w = body_w as f64 - (Y_LABEL_W + BAR_PANEL_W + 2 * MARGIN) as f64;
+        let zoom = (avail_w / self.img_w).max(1e-6);
+        let width = body_w as i32 - 10;
+        let (mut x, mut lines) = (LEGEND_X, 1);
+        for (marker, label, break_before) in self.legend_entries(zoom) {
+            let tw = text(LEGEND_SIZE)
+                .font
+                .box_size(&label)
+                .map_or(8 * label.chars().count() as u32, |(w, _)| w) as i32;
+            // a margin for the arrow's length and the font's rounding
+            let mw = marker.width().max(60) + 8;
+            if break_before || (x > LEGEND_X && x + mw + tw > width) {
+                lines += 1;
+                x = LEGEND_X;
+            }
+            x += mw + tw + 26;
+        }
+        LEGEND_PAD + lines * LEGEND_LINE_H as u32
+    }
+
+    fn draw_legend<DB: DrawingBackend>(
+        &self,
+        area: &DrawingArea<DB, Shift>,
+        zoom: f64,
+    ) -> Result<(), FigureError>
+    where
+        DB::ErrorType: 'static,
+    {
+        let (w, _) = area.dim_in_pixel();
+        let mut row = LegendRow::new(area, w, LEGEND_X, LEGEND_LINE_H);
+        for (marker, label, break_before) in self.legend_entries(zoom) {
+            if break_before {
+                row.newline();
+            }
+            row.item(marker, &label)?;
         }
         Ok(())
     }
@@ -758,6 +795,17 @@ enum Marker {
     None,
 }
 
+impl Marker {
+    /// Width (px) of the marker and the gap before its text.
+    fn width(&self) -> i32 {
+        match self {
+            Marker::Arrow(len) => len + 8,
+            Marker::None => 0,
+            _ => 18,
+        }
+    }
+}
+
 /// Places legend items left to right, wrapping to a new line.
 struct LegendRow<'a, DB: DrawingBackend> {
     area: &'a DrawingArea<DB, Shift>,
@@ -793,11 +841,7 @@ where
             .area
             .estimate_text_size(label, &text(LEGEND_SIZE))
             .map_err(plot_err)?;
-        let marker_w = match marker {
-            Marker::Arrow(len) => len + 8,
-            Marker::None => 0,
-            _ => 18,
-        };
+        let marker_w = marker.width();
         if self.x > self.x_start && self.x + marker_w + tw as i32 > self.width as i32 - 10 {
             self.newline();
         }

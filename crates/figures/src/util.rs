@@ -24,11 +24,6 @@ pub(crate) fn percentile(sorted: &[f64], p: f64) -> Option<f64> {
     }
 }
 
-/// Median of sorted data.
-pub(crate) fn median(sorted: &[f64]) -> Option<f64> {
-    percentile(sorted, 50.0)
-}
-
 /// The largest number of the form {1, 2, 5}·10^k that is ≤ `v` (v > 0, finite).
 pub(crate) fn nice_floor(v: f64) -> f64 {
     if !(v.is_finite() && v > 0.0) {

@@ -22,6 +22,17 @@ pub enum AxisScale {
     /// Base-10 logarithmic axis, range rounded out to whole decades; values ≤ 0 cannot be
     /// drawn and are counted in the legend.
     Log10,
+    /// Linear axis of whole numbers (frame numbers, counts): ticks only at integers.
+    Integer,
+    /// Linear axis whose range includes 0 (magnitudes), so that small differences between
+    /// values look as small as they are.
+    FromZero,
+}
+
+impl AxisScale {
+    fn is_log(self) -> bool {
+        self == AxisScale::Log10
+    }
 }
 
 /// How a series is drawn.
@@ -158,6 +169,8 @@ pub fn campaign_figure(title: &str, rows: &[CampaignRow]) -> Result<Figure, Figu
         title: "Median displacement magnitude".to_string(),
         x_label: "frame index".to_string(),
         y_label: "median |d| (px)".to_string(),
+        x_scale: AxisScale::Integer,
+        y_scale: AxisScale::FromZero,
         series: vec![series("median |d| over valid dots", |r| r.median_d)],
         ..XyPlot::default()
     };
@@ -165,6 +178,8 @@ pub fn campaign_figure(title: &str, rows: &[CampaignRow]) -> Result<Figure, Figu
         title: "Median displacement uncertainty".to_string(),
         x_label: "frame index".to_string(),
         y_label: "median |u_d| (px, 1σ)".to_string(),
+        x_scale: AxisScale::Integer,
+        y_scale: AxisScale::FromZero,
         series: vec![series("median |u_d| over valid dots", |r| r.median_u)],
         ..XyPlot::default()
     };
@@ -172,7 +187,7 @@ pub fn campaign_figure(title: &str, rows: &[CampaignRow]) -> Result<Figure, Figu
 }
 
 fn drawable(v: f64, scale: AxisScale) -> bool {
-    v.is_finite() && (scale == AxisScale::Linear || v > 0.0)
+    v.is_finite() && (!scale.is_log() || v > 0.0)
 }
 
 fn axis_range(values: impl Iterator<Item = f64>, scale: AxisScale) -> Option<(f64, f64)> {
@@ -185,10 +200,18 @@ fn axis_range(values: impl Iterator<Item = f64>, scale: AxisScale) -> Option<(f6
         return None;
     }
     Some(match scale {
-        AxisScale::Linear => {
+        AxisScale::Linear | AxisScale::Integer => {
             let (lo, hi) = widen_zero_range(lo, hi);
             let pad = 0.05 * (hi - lo);
             (lo - pad, hi + pad)
+        }
+        AxisScale::FromZero => {
+            let (lo, hi) = widen_zero_range(lo.min(0.0), hi.max(0.0));
+            let pad = 0.05 * (hi - lo);
+            (
+                if lo < 0.0 { lo - pad } else { lo },
+                if hi > 0.0 { hi + pad } else { hi },
+            )
         }
         AxisScale::Log10 => {
             let (a, b) = (lo.log10(), hi.log10());
@@ -197,6 +220,30 @@ fn axis_range(values: impl Iterator<Item = f64>, scale: AxisScale) -> Option<(f6
             (10f64.powf(a - pad), 10f64.powf(b + pad))
         }
     })
+}
+
+/// How many ticks to ask for on an axis: `most`, and on an [`AxisScale::Integer`] axis no more
+/// than there are whole numbers in its range (so that the step is at least 1).
+fn tick_count(scale: AxisScale, (lo, hi): (f64, f64), most: usize) -> usize {
+    if scale == AxisScale::Integer {
+        let whole = (hi.floor() - lo.ceil() + 1.0).max(1.0);
+        (whole as usize).clamp(1, most)
+    } else {
+        most
+    }
+}
+
+/// The tick labels of an axis: significant figures on a log axis, whole numbers only on an
+/// [`AxisScale::Integer`] axis (a tick between two is left unlabelled), else fixed decimals
+/// suited to the range.
+fn tick_format(scale: AxisScale, (lo, hi): (f64, f64), ticks: usize) -> impl Fn(&f64) -> String {
+    let dec = tick_decimals(lo, hi, ticks);
+    move |v: &f64| match scale {
+        AxisScale::Log10 => fmt_num(*v),
+        AxisScale::Integer if (v - v.round()).abs() > 1e-9 * v.abs().max(1.0) => String::new(),
+        AxisScale::Integer => fmt_fixed(v.round(), 0),
+        _ => fmt_fixed(*v, dec),
+    }
 }
 
 fn make_panel(plot: &XyPlot, caption: bool) -> Result<Panel, FigureError> {
@@ -266,8 +313,8 @@ impl Panel {
     /// ties), so the legend hides as little data as possible.
     fn legend_corner(&self) -> SeriesLabelPosition {
         let norm = |v: f64, (a, b): (f64, f64), s: AxisScale| match s {
-            AxisScale::Linear => (v - a) / (b - a),
             AxisScale::Log10 => (v.log10() - a.log10()) / (b.log10() - a.log10()),
+            _ => (v - a) / (b - a),
         };
         let p = &self.plot;
         let ok = |&(x, y): &(f64, f64)| drawable(x, p.x_scale) && drawable(y, p.y_scale);
@@ -306,8 +353,8 @@ impl Panel {
     /// Points within the right (or left) 30 % of the plot and 10 % of its height around `y`.
     fn crowded_near(&self, y: f64, right: bool) -> usize {
         let norm = |v: f64, (a, b): (f64, f64), s: AxisScale| match s {
-            AxisScale::Linear => (v - a) / (b - a),
             AxisScale::Log10 => (v.log10() - a.log10()) / (b.log10() - a.log10()),
+            _ => (v - a) / (b - a),
         };
         let p = &self.plot;
         let vy = norm(y, self.y_range, p.y_scale);
@@ -343,17 +390,11 @@ impl Panel {
         };
         let (x0, x1) = self.x_range;
         let (y0, y1) = self.y_range;
-        match (self.plot.x_scale, self.plot.y_scale) {
-            (AxisScale::Linear, AxisScale::Linear) => self.draw_on(&area, x0..x1, y0..y1),
-            (AxisScale::Log10, AxisScale::Linear) => {
-                self.draw_on(&area, LogAxis::new(x0, x1), y0..y1)
-            }
-            (AxisScale::Linear, AxisScale::Log10) => {
-                self.draw_on(&area, x0..x1, LogAxis::new(y0, y1))
-            }
-            (AxisScale::Log10, AxisScale::Log10) => {
-                self.draw_on(&area, LogAxis::new(x0, x1), LogAxis::new(y0, y1))
-            }
+        match (self.plot.x_scale.is_log(), self.plot.y_scale.is_log()) {
+            (false, false) => self.draw_on(&area, x0..x1, y0..y1),
+            (true, false) => self.draw_on(&area, LogAxis::new(x0, x1), y0..y1),
+            (false, true) => self.draw_on(&area, x0..x1, LogAxis::new(y0, y1)),
+            (true, true) => self.draw_on(&area, LogAxis::new(x0, x1), LogAxis::new(y0, y1)),
         }
     }
 
@@ -381,32 +422,14 @@ impl Panel {
             .set_label_area_size(LabelAreaPosition::Bottom, 52)
             .build_cartesian_2d(xr, yr)
             .map_err(plot_err)?;
-        let xdec = tick_decimals(self.x_range.0, self.x_range.1, 10);
-        let ydec = tick_decimals(self.y_range.0, self.y_range.1, 8);
-        let (xlog, ylog) = (
-            plot.x_scale == AxisScale::Log10,
-            plot.y_scale == AxisScale::Log10,
-        );
-        let xf = move |v: &f64| {
-            if xlog {
-                fmt_num(*v)
-            } else {
-                fmt_fixed(*v, xdec)
-            }
-        };
-        let yf = move |v: &f64| {
-            if ylog {
-                fmt_num(*v)
-            } else {
-                fmt_fixed(*v, ydec)
-            }
-        };
+        let xf = tick_format(plot.x_scale, self.x_range, 10);
+        let yf = tick_format(plot.y_scale, self.y_range, 8);
         chart
             .configure_mesh()
             .light_line_style(BLACK.mix(0.04))
             .bold_line_style(BLACK.mix(0.12))
-            .x_labels(10)
-            .y_labels(8)
+            .x_labels(tick_count(plot.x_scale, self.x_range, 10))
+            .y_labels(tick_count(plot.y_scale, self.y_range, 8))
             .x_label_formatter(&xf)
             .y_label_formatter(&yf)
             .label_style(text(TICK_SIZE))
@@ -632,5 +655,28 @@ mod tests {
         let (a, b) = axis_range([5.0].into_iter(), AxisScale::Linear).unwrap();
         assert!(a < 5.0 && b > 5.0);
         assert_eq!(axis_range(std::iter::empty(), AxisScale::Linear), None);
+        // magnitudes that differ by 10 %: from zero, they fill 90 % to 100 % of the axis, not
+        // all of it
+        let (a, b) = axis_range([0.031, 0.034].into_iter(), AxisScale::FromZero).unwrap();
+        assert_eq!(a, 0.0);
+        assert!((b - 0.034 * 1.05).abs() < 1e-12, "{b}");
+        let (a, b) = axis_range([0.031, 0.034].into_iter(), AxisScale::Linear).unwrap();
+        assert!(a > 0.03 && b < 0.035);
+    }
+
+    #[test]
+    fn integer_axes_label_whole_numbers_only() {
+        // three frames: the padded range 0.9..3.1 holds three whole numbers
+        let range = axis_range([1.0, 2.0, 3.0].into_iter(), AxisScale::Integer).unwrap();
+        assert_eq!(tick_count(AxisScale::Integer, range, 10), 3);
+        assert_eq!(tick_count(AxisScale::Linear, range, 10), 10);
+        let f = tick_format(AxisScale::Integer, range, 10);
+        assert_eq!(
+            (f(&1.0), f(&2.0), f(&1.5), f(&2.2)),
+            ("1".into(), "2".into(), String::new(), String::new())
+        );
+        // one frame
+        let range = axis_range([7.0].into_iter(), AxisScale::Integer).unwrap();
+        assert_eq!(tick_count(AxisScale::Integer, range, 10), 1);
     }
 }

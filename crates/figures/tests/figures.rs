@@ -104,7 +104,9 @@ fn every_map_renders_png_and_svg() {
     let svg = figs[0].to_svg().unwrap();
     assert!(svg.contains("|d| (px)"), "colour bar label with unit");
     assert!(svg.contains("arrows drawn ×"), "arrow scale stated");
-    assert!(figs[1].to_svg().unwrap().contains("|AR|"));
+    // AR as the larger axis: 1 where nothing is amplified (not |AR|, which is √2 there)
+    let ar = figs[1].to_svg().unwrap();
+    assert!(ar.contains("max(AR_x, AR_y)") && !ar.contains("|AR|"));
     assert!(figs[2].to_svg().unwrap().contains("|u_d| (px)"));
 }
 
@@ -209,13 +211,14 @@ fn histograms_render() {
     let svg = check_svg(&fig, "frame 2");
     assert!(svg.contains("u_ref") && svg.contains("u_grad") && svg.contains("median"));
     assert!(svg.contains("(px)"));
+    assert!(svg.contains("√(u_x² + u_y²)"), "the norm shown is named");
 
     let ar: Vec<f64> = (0..1000).map(|k| 0.8 + 0.001 * k as f64).collect();
     let fig = ar_histogram(&ar, "frame 2").unwrap();
     check_png(&fig);
     let svg = check_svg(&fig, "frame 2");
     assert!(
-        svg.contains("|AR| = 1"),
+        svg.contains("1: no amplification") && svg.contains("max(AR_x, AR_y)"),
         "reference line at AR = 1 inside the range"
     );
 }
@@ -306,6 +309,60 @@ fn xy_and_campaign_render() {
         svg.contains("1 point not drawable"),
         "the NaN frame is reported"
     );
+}
+
+/// The baseline (`y`) of every `<text>` element of an SVG.
+fn text_baselines(svg: &str) -> Vec<f64> {
+    svg.split("<text")
+        .skip(1)
+        .filter_map(|t| {
+            let head = &t[..t.find('>')?];
+            let y = &head[head.find(" y=\"")? + 4..];
+            y[..y.find('"')?].parse().ok()
+        })
+        .collect()
+}
+
+/// Every legend line of a map lies inside the figure, whatever the image's shape and however
+/// many entries the legend has (all of them here: valid, outside the mask, invalid, masked
+/// region, dots without position, and the arrow scale of a subsampled field on its own line).
+#[test]
+fn map_legend_lines_lie_inside_the_figure() {
+    for (w, h) in [(200, 150), (60, 400), (1000, 1000), (400, 60)] {
+        let mask = Mask::from_fn(w, h, |_, y| y % 40 < 30);
+        let mut pts = Vec::new();
+        for j in 0..h / 4 {
+            for i in 0..w / 4 {
+                let (x, y) = (2.0 + 4.0 * i as f64, 2.0 + 4.0 * j as f64);
+                let k = pts.len();
+                pts.push(MapPoint::vector(
+                    x,
+                    y,
+                    0.3,
+                    -0.2,
+                    k % 7 != 0,
+                    mask.keeps(x as usize, y as usize),
+                ));
+            }
+        }
+        pts.push(MapPoint::vector(f64::NAN, 1.0, 0.0, 0.0, true, true));
+        let frame = MapFrame {
+            width: w,
+            height: h,
+            title: "a frame with a long enough name to matter (frame 12 of 400)",
+            mask: Some(&mask),
+        };
+        let fig = displacement_map(&pts, &frame, &MapOptions::default()).unwrap();
+        let svg = check_svg(&fig, "px displacement");
+        assert!(svg.contains("without position") && svg.contains("masked region"));
+        let (_, fig_h) = fig.size();
+        let lowest = text_baselines(&svg).into_iter().fold(0.0, f64::max);
+        // a legend line's text reaches about half its 14 px size below its centre
+        assert!(
+            lowest + 8.0 <= fig_h as f64,
+            "{w}×{h}: a text line at y = {lowest} in a figure {fig_h} px high"
+        );
+    }
 }
 
 #[test]

@@ -8,21 +8,12 @@
 //! bound, wall time, and the effect of the neighbour subtraction (position changes, sigma) and
 //! the agreement with the package's positions.
 
-use bostrack_core::{DotFit, DotFlags, FitStatus, GridIndex, Seed, Window};
+use bostrack_core::{DotFit, DotFlags, FitStatus, GridIndex, Seed, Window, median};
 use bostrack_fit::{
     FitConfig, Neighbours, estimate_noise_detailed, fit_dots, noise_from_stack_detailed,
 };
 use bostrack_io::{bos_sample_dir, read_image, read_mask_for};
 use std::time::Instant;
-
-fn median(v: &mut [f64]) -> f64 {
-    v.sort_by(f64::total_cmp);
-    if v.is_empty() {
-        f64::NAN
-    } else {
-        v[v.len() / 2]
-    }
-}
 
 fn percentile(v: &mut [f64], p: f64) -> f64 {
     v.sort_by(f64::total_cmp);

@@ -193,96 +193,14 @@ fn by_distance_then_index(a: &(f64, u32), b: &(f64, u32)) -> std::cmp::Ordering 
     a.0.total_cmp(&b.0).then(a.1.cmp(&b.1))
 }
 
-/// Median of `v` (reordered in place); NaN for an empty slice. For an even count, the mean of
-/// the two middle values. Meant for finite values (a NaN gives an unspecified result, never a
-/// panic).
-pub(crate) fn median(v: &mut [f64]) -> f64 {
-    let n = v.len();
-    if n == 0 {
-        return f64::NAN;
-    }
-    if n == 8 {
-        // the default neighbourhood: Batcher's odd-even merge sort, 19 compare-exchanges
-        let mut a = [v[0], v[1], v[2], v[3], v[4], v[5], v[6], v[7]];
-        macro_rules! cx {
-            ($($i:literal $j:literal),*) => {$(
-                let (x, y) = (a[$i], a[$j]);
-                a[$i] = if y < x { y } else { x };
-                a[$j] = if y < x { x } else { y };
-            )*};
-        }
-        cx!(0 1, 2 3, 4 5, 6 7, 0 2, 1 3, 4 6, 5 7, 1 2, 5 6);
-        cx!(0 4, 1 5, 2 6, 3 7, 2 4, 3 5, 1 2, 3 4, 5 6);
-        v.copy_from_slice(&a);
-        return 0.5 * (a[3] + a[4]);
-    }
-    if n <= 24 {
-        // short lists (neighbourhoods): insertion sort beats selection
-        for a in 1..n {
-            let x = v[a];
-            let mut b = a;
-            while b > 0 && v[b - 1] > x {
-                v[b] = v[b - 1];
-                b -= 1;
-            }
-            v[b] = x;
-        }
-        return if n % 2 == 1 {
-            v[n / 2]
-        } else {
-            0.5 * (v[n / 2 - 1] + v[n / 2])
-        };
-    }
-    let (_, &mut hi, _) = v.select_nth_unstable_by(n / 2, f64::total_cmp);
-    if n % 2 == 1 {
-        hi
-    } else {
-        let lo = v[..n / 2]
-            .iter()
-            .copied()
-            .max_by(f64::total_cmp)
-            .unwrap_or(hi);
-        0.5 * (lo + hi)
-    }
-}
+/// The workspace's median (finite values only; NaN when none): [`bostrack_core::median`].
+pub(crate) use bostrack_core::median;
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use rand::rngs::StdRng;
     use rand::{RngExt, SeedableRng};
-
-    #[test]
-    fn median_odd_even_empty() {
-        assert_eq!(median(&mut [3.0, 1.0, 2.0]), 2.0);
-        assert_eq!(median(&mut [4.0, 1.0, 3.0, 2.0]), 2.5);
-        assert!(median(&mut []).is_nan());
-        // the sorting network of the 8-value case sorts every 0/1 input (0-1 principle)
-        for bits in 0u32..256 {
-            let mut v: Vec<f64> = (0..8).map(|b| ((bits >> b) & 1) as f64).collect();
-            let ones = bits.count_ones() as f64;
-            let want = match ones as u32 {
-                0..=3 => 0.0,
-                4 => 0.5,
-                _ => 1.0,
-            };
-            assert_eq!(median(&mut v), want, "{bits:08b} ({ones} ones)");
-            assert!(v.windows(2).all(|w| w[0] <= w[1]), "{bits:08b}");
-        }
-        // the short (insertion sort) and long (selection) paths agree with a full sort
-        let mut rng = StdRng::seed_from_u64(1);
-        for n in 1..60 {
-            let v: Vec<f64> = (0..n).map(|_| rng.random_range(-5.0..5.0)).collect();
-            let mut s = v.clone();
-            s.sort_by(f64::total_cmp);
-            let want = if n % 2 == 1 {
-                s[n / 2]
-            } else {
-                0.5 * (s[n / 2 - 1] + s[n / 2])
-            };
-            assert_eq!(median(&mut v.clone()), want, "n = {n}");
-        }
-    }
 
     #[test]
     fn point_set_skips_non_finite_and_maps_back() {

@@ -32,19 +32,9 @@ impl Running {
     }
 }
 
-/// Median of the finite values (NaN if none).
+/// Median of the finite values (NaN if none): [`bostrack_core::median`].
 pub(crate) fn median(values: impl IntoIterator<Item = f64>) -> f64 {
-    let mut v: Vec<f64> = values.into_iter().filter(|x| x.is_finite()).collect();
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    }
+    bostrack_core::median(&mut values.into_iter().collect::<Vec<f64>>())
 }
 
 /// Mean and standard error of the mean of the finite values (NaN if fewer than two).

@@ -204,10 +204,10 @@ pub enum Figure {
     Displacement,
     /// Per frame: map of the displacement uncertainty |u_d| (`uncertainty.*`).
     Uncertainty,
-    /// Per frame: map of the amplification ratio |AR| (`amplification.*`).
+    /// Per frame: map of the amplification ratio max(AR_x, AR_y) (`amplification.*`).
     Amplification,
     /// Per frame: histograms of the position uncertainty magnitudes u_ref and u_grad (the
-    /// paper's Fig. 6c,f; `uncertainty-histogram.*`) and of |AR| (`ar-histogram.*`).
+    /// paper's Fig. 6c,f; `uncertainty-histogram.*`) and of max(AR_x, AR_y) (`ar-histogram.*`).
     Histograms,
     /// Campaign figure: median |d| and median |u_d| against the frame number
     /// (`DIR/campaign.*`).

@@ -3,9 +3,10 @@
 //! right after its frame was computed, on a rerun or by `bostrack merge`.
 //!
 //! Per frame (into `DIR/<frame>/`): `displacement.*` (arrows over |d|), `amplification.*`
-//! (|AR| = √(AR_x² + AR_y²)), `uncertainty.*` (|u_d| = √(u_dx² + u_dy²)),
+//! (max(AR_x, AR_y): 1 where nothing is amplified), `uncertainty.*` (|u_d| = √(u_dx² + u_dy²)),
 //! `uncertainty-histogram.*` (magnitudes √(u_x² + u_y²) of u_ref and u_grad over the valid dots
-//! inside the mask, the paper's Fig. 6c,f) and `ar-histogram.*` (|AR| over the same dots). Every
+//! inside the mask, the paper's Fig. 6c,f) and `ar-histogram.*` (max(AR_x, AR_y) over the same
+//! dots). Every
 //! map is in image coordinates (px, y down, docs/CONVENTIONS.md); dots outside the mask are grey
 //! rings, invalid dots red crosses. `DIR/<frame>/figures.json` is written last and lists what
 //! was requested, written and skipped (a figure with nothing to plot, e.g. uncertainties
@@ -254,11 +255,11 @@ fn frame_figure(
             .map(|k| bf::MapPoint::scalar(d.x_ref[k], d.y_ref[k], value(k), d.valid[k], in_mask[k]))
             .collect()
     };
-    // Histograms: the valid dots inside the mask.
-    let kept = |a: &[f64], b: &[f64]| -> Vec<f64> {
+    // Histograms: the valid dots inside the mask, one value per dot from its two axes.
+    let kept = |a: &[f64], b: &[f64], of_axes: fn(f64, f64) -> f64| -> Vec<f64> {
         (0..n)
             .filter(|&k| d.valid[k] && in_mask[k])
-            .map(|k| a[k].hypot(b[k]))
+            .map(|k| of_axes(a[k], b[k]))
             .collect()
     };
     let frame = setup.map_frame(title);
@@ -275,7 +276,7 @@ fn frame_figure(
             bf::displacement_map(&points, &frame, &options)
         }
         FrameFigure::Amplification => {
-            bf::ar_map(&scalar(&|k| d.ar_x[k].hypot(d.ar_y[k])), &frame, &options)
+            bf::ar_map(&scalar(&|k| larger(d.ar_x[k], d.ar_y[k])), &frame, &options)
         }
         FrameFigure::Uncertainty => bf::uncertainty_map(
             &scalar(&|k| d.u_dx[k].hypot(d.u_dy[k])),
@@ -284,7 +285,10 @@ fn frame_figure(
             &options,
         ),
         FrameFigure::UncertaintyHistogram => {
-            let (u_ref, u_grad) = (kept(&d.u_ref_x, &d.u_ref_y), kept(&d.u_grad_x, &d.u_grad_y));
+            let (u_ref, u_grad) = (
+                kept(&d.u_ref_x, &d.u_ref_y, f64::hypot),
+                kept(&d.u_grad_x, &d.u_grad_y, f64::hypot),
+            );
             if !u_ref.iter().chain(&u_grad).any(|v| v.is_finite()) {
                 return Err(no_data(
                     "uncertainty histogram",
@@ -293,7 +297,17 @@ fn frame_figure(
             }
             bf::uncertainty_histogram(&u_ref, &u_grad, title)
         }
-        FrameFigure::ArHistogram => bf::ar_histogram(&kept(&d.ar_x, &d.ar_y), title),
+        FrameFigure::ArHistogram => bf::ar_histogram(&kept(&d.ar_x, &d.ar_y, larger), title),
+    }
+}
+
+/// The larger of two per-axis values (an amplification ratio: 1 where neither axis is
+/// amplified); NaN when either is unknown.
+fn larger(a: f64, b: f64) -> f64 {
+    if a.is_nan() || b.is_nan() {
+        f64::NAN
+    } else {
+        a.max(b)
     }
 }
 
@@ -363,6 +377,9 @@ fn campaign_figure(title: &str, points: &[CampaignPoint]) -> Result<bf::Figure, 
             title: title.to_string(),
             x_label: "frame number (natural order of the file names)".to_string(),
             y_label: y_label.to_string(),
+            // whole frame numbers; magnitudes from zero, so that small differences look small
+            x_scale: bf::AxisScale::Integer,
+            y_scale: bf::AxisScale::FromZero,
             series: vec![bf::XySeries {
                 label: label.to_string(),
                 points: points.iter().map(|p| (p.frame as f64, f(p))).collect(),
@@ -421,4 +438,20 @@ fn detections_figure(
         &q,
         &bf::MapOptions::default(),
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::larger;
+
+    /// The AR figures' per-dot value is 1 for a dot amplified on neither axis (the norm
+    /// √(AR_x² + AR_y²) is √2 there), follows the more amplified axis, and is unknown when
+    /// either axis is.
+    #[test]
+    fn ar_shown_is_the_larger_axis() {
+        assert_eq!(larger(1.0, 1.0), 1.0);
+        assert_eq!(larger(1.0, 1.3), 1.3);
+        assert_eq!(larger(1.2, 0.9), 1.2);
+        assert!(larger(f64::NAN, 2.0).is_nan() && larger(2.0, f64::NAN).is_nan());
+    }
 }

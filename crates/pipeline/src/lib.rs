@@ -44,6 +44,7 @@ mod load;
 mod pair;
 mod plan;
 mod suggest;
+mod table;
 mod template;
 
 pub use batch::{
@@ -67,4 +68,5 @@ pub use pair::{
 };
 pub use plan::{OutputPlan, Plan, ReferenceImage};
 pub use suggest::{did_you_mean, edit_distance};
+pub use table::CsvTable;
 pub use template::template;

@@ -259,7 +259,7 @@ pub(crate) const SECTIONS: &[SectionDoc] = &[
     SectionDoc {
         name: "uncertainty",
         doc: "Per-dot displacement uncertainty: u_d = sqrt(u_refpos^2 + u_grad^2), u_grad = AR * u_ref\n\
-              (docs/CONVENTIONS.md, ../shared/papers/NOTES.md section 2).",
+              (docs/CONVENTIONS.md; the amplification ratio: docs/theory.md, Eq. 37).",
         keys: &[
             key(
                 "common_mode",
@@ -275,7 +275,7 @@ pub(crate) const SECTIONS: &[SectionDoc] = &[
                 "ar_variant",
                 "Amplification ratio: \"bounds\" (the ratio of the two fits' own Cramer-Rao bounds:\n\
                  right under shot noise too; needs [fit] bound = true), \"notes\" (the closed form\n\
-                 of NOTES.md section 2 from the fitted shapes: right under read noise alone) or\n\
+                 of docs/theory.md, Eq. 37, from the fitted shapes: right under read noise alone) or\n\
                  \"published\" (the published reference code, only to reproduce published numbers).",
             ),
         ],
@@ -295,9 +295,10 @@ pub(crate) const SECTIONS: &[SectionDoc] = &[
             key(
                 "figures",
                 "Figures to draw. Per frame, into DIR/<frame>/: \"displacement\" (arrows over |d|),\n\
-                 \"uncertainty\" (map of |u_d|), \"amplification\" (map of |AR|), \"histograms\"\n\
-                 (u_ref and u_grad, |AR|). Per campaign, into DIR/: \"campaign\" (median |d| and\n\
-                 median |u_d| against the frame number), \"detections\" (the reference dots).",
+                 \"uncertainty\" (map of |u_d|), \"amplification\" (map of max(AR_x, AR_y)),\n\
+                 \"histograms\" (|u_ref| and |u_grad|, max(AR_x, AR_y)). Per campaign, into DIR/:\n\
+                 \"campaign\" (median |d| and median |u_d| against the frame number),\n\
+                 \"detections\" (the reference dots).",
             ),
             key(
                 "figure_formats",

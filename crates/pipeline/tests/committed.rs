@@ -33,6 +33,35 @@ fn pipeline_toml_is_the_generated_template() {
     assert_eq!(load_config(&path).unwrap(), expected_cfg);
 }
 
+/// The comments `bostrack init` writes into every new `pipeline.toml` point only inside the
+/// repository: no `../` path, and every `docs/…` file they name exists.
+#[test]
+fn the_template_points_only_inside_the_repository() {
+    let text = template(&PipelineConfig::default()).unwrap();
+    assert!(
+        !text.contains("../"),
+        "the template names a path outside the repository"
+    );
+    assert!(
+        !text.contains("shared/"),
+        "the template names the shared folder"
+    );
+    let mut named = 0;
+    for (k, _) in text.match_indices("docs/") {
+        let path: String = text[k..]
+            .chars()
+            .take_while(|c| c.is_ascii_alphanumeric() || "/._-".contains(*c))
+            .collect();
+        let path = path.trim_end_matches('.');
+        assert!(
+            repo_root().join(path).is_file(),
+            "the template names {path}, which does not exist"
+        );
+        named += 1;
+    }
+    assert!(named > 0);
+}
+
 #[test]
 fn the_demo_campaign_resolves() {
     let plan = Plan::load(&repo_root().join("pipeline.toml")).unwrap();

@@ -15,14 +15,8 @@ fn in_flow(x: f64, y: f64) -> bool {
 }
 
 fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    assert!(n > 0);
-    if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    }
+    assert!(!v.is_empty());
+    bostrack_core::median(&mut v)
 }
 
 fn p99(mut v: Vec<f64>) -> f64 {

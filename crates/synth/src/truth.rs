@@ -131,8 +131,9 @@ struct Row {
     background: f64,
     flags: DotFlags,
     defect: String,
-    crlb_x: f64,
-    crlb_y: f64,
+    /// `None`: not available, an empty field (the one convention of every table).
+    crlb_x: Option<f64>,
+    crlb_y: Option<f64>,
 }
 
 /// The columns of the truth CSV, in order.
@@ -154,7 +155,7 @@ pub const TRUTH_CSV_COLUMNS: [&str; 13] = [
 
 /// Writes the truth as CSV with a header row: grid index `i, j`; `x, y` (px,
 /// docs/CONVENTIONS.md); `sigma_x, sigma_y, rho, amplitude, background`; `flags` (`a|b`, empty
-/// for none); `defect` (kind or empty); `crlb_x, crlb_y` (px, `NaN` when not available). Floats are
+/// for none); `defect` (kind or empty); `crlb_x, crlb_y` (px, empty when not available). Floats are
 /// written in shortest round-trip form, so [`read_truth_csv`] gives back the same bits.
 pub fn write_truth_csv<W: Write>(w: W, truth: &[TruthDot]) -> Result<(), SynthError> {
     let mut wr = csv::Writer::from_writer(w);
@@ -172,8 +173,8 @@ pub fn write_truth_csv<W: Write>(w: W, truth: &[TruthDot]) -> Result<(), SynthEr
             background: p.background,
             flags: t.flags,
             defect: t.defect.map(|d| d.as_str().to_string()).unwrap_or_default(),
-            crlb_x: t.crlb_x,
-            crlb_y: t.crlb_y,
+            crlb_x: t.crlb_x.is_finite().then_some(t.crlb_x),
+            crlb_y: t.crlb_y.is_finite().then_some(t.crlb_y),
         })?;
     }
     if truth.is_empty() {
@@ -212,8 +213,8 @@ pub fn read_truth_csv<R: Read>(r: R) -> Result<Vec<TruthDot>, SynthError> {
             },
             flags: row.flags,
             defect,
-            crlb_x: row.crlb_x,
-            crlb_y: row.crlb_y,
+            crlb_x: row.crlb_x.unwrap_or(f64::NAN),
+            crlb_y: row.crlb_y.unwrap_or(f64::NAN),
         });
     }
     Ok(out)

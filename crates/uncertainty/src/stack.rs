@@ -1,7 +1,7 @@
 //! Per-dot scatter over a no-flow stack, after removing each image's common-mode shift.
 
 use crate::error::StackError;
-use bostrack_core::{DotFit, GridIndex};
+use bostrack_core::{DotFit, GridIndex, median};
 use std::collections::HashMap;
 
 /// What to do with the shift that all dots of one image share (camera or target motion between
@@ -216,21 +216,6 @@ fn corrected_means(
             (c > 0).then(|| [sx / c as f64, sy / c as f64])
         })
         .collect()
-}
-
-/// Median (NaN for an empty slice; mean of the middle two for an even count).
-fn median(v: &mut [f64]) -> f64 {
-    let n = v.len();
-    if n == 0 {
-        return f64::NAN;
-    }
-    let (_, &mut hi, _) = v.select_nth_unstable_by(n / 2, f64::total_cmp);
-    if n % 2 == 1 {
-        hi
-    } else {
-        let lo = v[..n / 2].iter().copied().fold(f64::NEG_INFINITY, f64::max);
-        0.5 * (lo + hi)
-    }
 }
 
 /// One reference dot's stack statistics: [`DotScatter`] with its grid index.

@@ -573,13 +573,7 @@ impl Times {
         self.best_run().wall
     }
     fn median(&self) -> f64 {
-        let mut v: Vec<f64> = self.0.iter().map(|r| r.wall).collect();
-        v.sort_by(f64::total_cmp);
-        match v.len() {
-            0 => f64::NAN,
-            n if n % 2 == 1 => v[n / 2],
-            n => 0.5 * (v[n / 2 - 1] + v[n / 2]),
-        }
+        bostrack_core::median(&mut self.0.iter().map(|r| r.wall).collect::<Vec<f64>>())
     }
 }
 

@@ -24,7 +24,7 @@ testdata/crlb-setup.toml is a commented example; unknown keys are errors):
   crlb_x, crlb_y        exact Cramér-Rao bound of the gradient dot's position (pixel-integrated,
                         7 free parameters, 1 sigma, px); crlb_ref_* that of the reference dot
   eq35_x, eq35_y        the closed form (Eq. 35 with rho, docs/theory.md)
-  ar_x, ar_y            amplification ratio (NOTES.md §2); ar_exact_* the ratio of exact bounds
+  ar_x, ar_y            amplification ratio (docs/theory.md, Eq. 37); ar_exact_* the ratio of exact bounds
   u_d_x, u_d_y          displacement uncertainty of one pair, sqrt(crlb_ref² + crlb²), px
   flags                 where the model's assumptions are strained (cone_clamped,
                         cone_corrected, wide_cone, non_gaussian, undersampled, lensing,
@@ -182,7 +182,7 @@ fn prediction_text(setup: &Setup, p: &Prediction, path: &Path) -> String {
         format!("{:.5}, {:.5} px", p.eq35_x, p.eq35_y),
     );
     line(
-        "AR (x, y), NOTES §2",
+        "AR (x, y), closed form (Eq. 37)",
         format!("{:.4}, {:.4}", p.ar_x, p.ar_y),
     );
     line(
@@ -388,7 +388,7 @@ fn write_sweeps(setup: &Setup, args: &CrlbArgs, out: &Path) -> anyhow::Result<us
             ref_lines: Vec::new(),
         },
         XyPlot {
-            title: "Amplification ratio (NOTES.md §2)".into(),
+            title: "Amplification ratio (closed form, Eq. 37)".into(),
             x_label: "f-number".into(),
             y_label: "AR".into(),
             x_scale: AxisScale::Log10,

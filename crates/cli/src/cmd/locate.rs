@@ -3,11 +3,12 @@
 use crate::Outcome;
 use crate::jobs::JobsArg;
 use anyhow::Context as _;
-use bostrack_core::{DotFit, DotFlags, FitStatus, NoiseModel};
+use bostrack_core::{DotFit, DotFlags, FitStatus, NoiseModel, table};
 use bostrack_detect::{DetectConfig, detect};
 use bostrack_fit::{Estimator, FitConfig, estimate_noise, fit_dots};
 use bostrack_io::Saturation;
 use bostrack_model::ModelKind;
+use bostrack_pipeline::CsvTable;
 use clap::Args;
 use std::io::Write as _;
 use std::path::PathBuf;
@@ -24,7 +25,7 @@ Detect every dot of a dot-target image on its lattice (bostrack-detect), fit eac
 
   i,j                  grid index (i along the lattice vector closest to +x, j closest to +y)
   x,y                  fitted centre, px (pixel centres at integers, origin at the centre of the
-                       top-left pixel, y down); NaN when the dot was not fitted
+                       top-left pixel, y down); empty when the dot was not fitted
 {}
 {}
   sigma_x,sigma_y,rho  fitted shape, px (dot diameter d = 4 sigma)
@@ -38,8 +39,9 @@ Detect every dot of a dot-target image on its lattice (bostrack-detect), fit eac
 The meaning of every status and flag is in the table of docs/CONVENTIONS.md. The noise model
 (read + shot noise) that weights the fits and sets the bounds is estimated from the image itself
 unless --read-noise is given. Per-dot problems are data (status and flags), never errors: the
-command fails (exit 1) only when the image cannot be read or no lattice is found. Parameters an
-estimator does not estimate are NaN (the three-point Gaussian does not estimate rho).",
+command fails (exit 1) only when the image cannot be read or no lattice is found. Numbers have 6
+decimals; a value that is not known (not fitted, or not estimated: the three-point Gaussian does
+not estimate rho) is an empty field, as in every table bostrack writes.",
         column(
             "status",
             &format!("why the fit stopped: {}", statuses.join(", "))
@@ -261,6 +263,8 @@ pub(crate) fn run(args: LocateArgs) -> anyhow::Result<Outcome> {
     Ok(Outcome::Done)
 }
 
+/// Writes `locate`'s table by the one table writer ([`CsvTable`]): float cells by
+/// [`table::number`], so an unknown value (not fitted, not estimated) is the empty field.
 fn write_csv(
     path: &std::path::Path,
     seeds: &[bostrack_core::Seed],
@@ -271,40 +275,39 @@ fn write_csv(
     }
     let file =
         std::fs::File::create(path).with_context(|| format!("cannot write {}", path.display()))?;
-    let mut w = std::io::BufWriter::new(file);
     let io = |e: std::io::Error| anyhow::anyhow!("cannot write {}: {e}", path.display());
-    writeln!(w, "{}", COLUMNS.join(",")).map_err(io)?;
+    let mut t = CsvTable::new(std::io::BufWriter::new(file), &COLUMNS).map_err(io)?;
     for (seed, f) in seeds.iter().zip(fits) {
         let p = &f.params;
-        // Not fitted: the position is unknown (NaN), whatever the record holds; the status and
+        // Not fitted: the position is unknown (empty) whatever the record holds; the status and
         // flags say why, and x_pred, y_pred give the lattice's prediction.
-        let (x, y) = if f.status == FitStatus::NotFitted {
-            (f64::NAN, f64::NAN)
-        } else {
-            (p.x0, p.y0)
+        let known = |v: f64| {
+            if f.status == FitStatus::NotFitted {
+                f64::NAN
+            } else {
+                v
+            }
         };
-        writeln!(
-            w,
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
-            f.index.i,
-            f.index.j,
-            x,
-            y,
-            f.status,
-            f.flags,
-            p.sigma_x,
-            p.sigma_y,
-            p.rho,
-            p.amplitude,
-            p.background,
-            f.crlb_x,
-            f.crlb_y,
-            f.rms,
-            f.iterations,
-            seed.predicted[0],
-            seed.predicted[1]
-        )
+        t.row(&[
+            f.index.i.to_string(),
+            f.index.j.to_string(),
+            table::number(known(p.x0)),
+            table::number(known(p.y0)),
+            f.status.to_string(),
+            f.flags.to_string(),
+            table::number(p.sigma_x),
+            table::number(p.sigma_y),
+            table::number(p.rho),
+            table::number(p.amplitude),
+            table::number(p.background),
+            table::number(f.crlb_x),
+            table::number(f.crlb_y),
+            table::number(f.rms),
+            f.iterations.to_string(),
+            table::number(seed.predicted[0]),
+            table::number(seed.predicted[1]),
+        ])
         .map_err(io)?;
     }
-    w.flush().map_err(io)
+    t.finish().map_err(io)?.flush().map_err(io)
 }

@@ -14,6 +14,8 @@ use super::fsx::AtomicFile;
 use super::{BatchError, FrameFailure, FrameRef, Progress};
 use crate::figures::{CampaignPoint, FigureSetup, FigureSpec, draw_campaign_figures};
 use crate::pair::frame_is_complete;
+use crate::table::CsvTable;
+use bostrack_core::table;
 use serde::{Deserialize, Serialize};
 use serde_json::{Map, Value};
 use std::collections::HashMap;
@@ -209,19 +211,18 @@ pub(crate) fn build(
     let json_path = out.join(CAMPAIGN_JSON);
     let mut csv_file = AtomicFile::create(&csv_path)?;
     let mut json_file = AtomicFile::create(&json_path)?;
-    let csv_err = |e: csv::Error| BatchError::Corrupt {
+    let csv_err = |e: std::io::Error| BatchError::Write {
         path: csv_path.clone(),
-        message: e.to_string(),
+        source: e,
     };
     let json_err = |e: std::io::Error| BatchError::Write {
         path: json_path.clone(),
         source: e,
     };
     {
-        let mut w = csv::Writer::from_writer(csv_file.writer());
         let mut header = vec!["frame", "stem", "file", "status", "reason"];
         header.extend(all_cols.iter().map(String::as_str));
-        w.write_record(&header).map_err(csv_err)?;
+        let mut w = CsvTable::new(csv_file.writer(), &header).map_err(csv_err)?;
         let head = serde_json::json!({
             "bostrack_version": env!("CARGO_PKG_VERSION"),
             "frames": frames.len(),
@@ -241,6 +242,8 @@ pub(crate) fn build(
         let cell = |v: Option<&Value>| match v {
             None | Some(Value::Null) => String::new(),
             Some(Value::String(s)) => s.clone(),
+            // counts as integers, measurements by the one float convention of every table
+            Some(Value::Number(n)) if n.is_f64() => table::number(n.as_f64().unwrap_or(f64::NAN)),
             Some(v) => v.to_string(),
         };
         let mut failed = failures.iter().peekable();
@@ -269,7 +272,7 @@ pub(crate) fn build(
                     .iter()
                     .map(|c| cell(lookup.get(c.as_str()).copied())),
             );
-            w.write_record(&rec).map_err(csv_err)?;
+            w.row(&rec).map_err(csv_err)?;
 
             let mut o = Map::new();
             o.insert("frame".into(), f.number.into());
@@ -299,10 +302,7 @@ pub(crate) fn build(
             write!(jw, "{sep}\n    {row}").map_err(json_err)?;
         }
         writeln!(jw, "\n  ]\n}}").map_err(json_err)?;
-        w.flush().map_err(|e| BatchError::Write {
-            path: csv_path.clone(),
-            source: e,
-        })?;
+        w.finish().map_err(csv_err)?;
     }
     csv_file.commit()?;
     json_file.commit()?;

@@ -3,6 +3,7 @@
 
 use super::FrameResult;
 use crate::error::PipelineError;
+use crate::table::CsvTable;
 use bostrack_displacement::{COLUMNS, to_row};
 use std::fs;
 use std::io::Write;
@@ -54,14 +55,8 @@ pub fn write_frame(out_dir: &Path, result: &FrameResult) -> Result<(), PipelineE
 fn write_into(dir: &Path, result: &FrameResult) -> Result<(), PipelineError> {
     let out = |path: PathBuf| move |source| PipelineError::Output { path, source };
     fs::create_dir(dir).map_err(out(dir.to_path_buf()))?;
-    let mut csv = String::with_capacity(200 * (result.dots.len() + 1));
-    csv.push_str(&COLUMNS.join(","));
-    csv.push('\n');
-    for d in &result.dots {
-        csv.push_str(&to_row(d).join(","));
-        csv.push('\n');
-    }
-    write_synced(&dir.join(DOTS), csv.as_bytes()).map_err(out(dir.join(DOTS)))?;
+    let csv = dots_csv(&result.dots).map_err(out(dir.join(DOTS)))?;
+    write_synced(&dir.join(DOTS), &csv).map_err(out(dir.join(DOTS)))?;
     let mut json =
         serde_json::to_vec_pretty(&result.summary).map_err(|e| PipelineError::Output {
             path: dir.join(SUMMARY),
@@ -69,6 +64,15 @@ fn write_into(dir: &Path, result: &FrameResult) -> Result<(), PipelineError> {
         })?;
     json.push(b'\n');
     write_synced(&dir.join(SUMMARY), &json).map_err(out(dir.join(SUMMARY)))
+}
+
+/// The text of `dots.csv`: [`COLUMNS`], then one [`to_row`] per dot, by the one table writer.
+fn dots_csv(dots: &[bostrack_displacement::PairDot]) -> std::io::Result<Vec<u8>> {
+    let mut t = CsvTable::new(Vec::with_capacity(200 * (dots.len() + 1)), &COLUMNS)?;
+    for d in dots {
+        t.row(&to_row(d))?;
+    }
+    t.finish()
 }
 
 fn write_synced(path: &Path, bytes: &[u8]) -> std::io::Result<()> {

@@ -2,20 +2,10 @@
 
 use std::time::Instant;
 
-/// Median of the finite values (mean of the two middle ones for an even count); `None` when
-/// there is none.
+/// Median of the finite values ([`bostrack_core::median`]); `None` when there is none.
 pub(crate) fn median(values: impl IntoIterator<Item = f64>) -> Option<f64> {
-    let mut v: Vec<f64> = values.into_iter().filter(|x| x.is_finite()).collect();
-    if v.is_empty() {
-        return None;
-    }
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    Some(if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    })
+    let m = bostrack_core::median(&mut values.into_iter().collect::<Vec<f64>>());
+    (!m.is_nan()).then_some(m)
 }
 
 /// Percentile `p` ∈ [0, 100] of the finite values, linear interpolation between order
