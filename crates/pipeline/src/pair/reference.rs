@@ -174,15 +174,18 @@ impl ReferenceContext {
         let (stack, stack_clips): (Vec<Image>, Vec<ClipLevel>) = plan
             .stack
             .par_iter()
-            .map(|p| -> Result<Vec<(Image, ClipLevel)>, bostrack_io::IoError> {
-                bostrack_io::read_stack(p)?
-                    .into_iter()
-                    .map(|mut img| {
-                        let clip = bostrack_io::apply_saturation(&mut img, saturation, Some(p))?;
-                        Ok((img, clip))
-                    })
-                    .collect()
-            })
+            .map(
+                |p| -> Result<Vec<(Image, ClipLevel)>, bostrack_io::IoError> {
+                    bostrack_io::read_stack(p)?
+                        .into_iter()
+                        .map(|mut img| {
+                            let clip =
+                                bostrack_io::apply_saturation(&mut img, saturation, Some(p))?;
+                            Ok((img, clip))
+                        })
+                        .collect()
+                },
+            )
             .collect::<Result<Vec<_>, _>>()?
             .into_iter()
             .flatten()
