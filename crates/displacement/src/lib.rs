@@ -1,7 +1,7 @@
 //! Per-dot displacement, amplification ratio and displacement uncertainty of a reference /
 //! gradient image pair.
 //!
-//! For one dot fitted in both images (docs/CONVENTIONS.md, ../shared/papers/NOTES.md):
+//! For one dot fitted in both images (docs/CONVENTIONS.md, docs/paper/NOTES.md):
 //!
 //! - displacement `d = x_grad - x_ref` (px), `x_ref` the reference fit or the no-flow stack mean
 //!   ([`ReferencePosition`]);

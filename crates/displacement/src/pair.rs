@@ -11,7 +11,7 @@ pub enum ReferencePosition {
     #[default]
     SingleImage,
     /// The mean position over the K images of the no-flow stack:
-    /// `u_refpos = u_ref / sqrt(K)` (../shared/papers/NOTES.md §4).
+    /// `u_refpos = u_ref / sqrt(K)` (docs/paper/NOTES.md §4).
     StackMean,
 }
 
@@ -31,7 +31,7 @@ pub enum Quantities {
 /// Which dot shapes enter the amplification ratio.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
 pub enum ArShapes {
-    /// The fitted parameters as they are (the formula of ../shared/papers/NOTES.md §2).
+    /// The fitted parameters as they are (the formula of docs/paper/NOTES.md §2).
     #[default]
     Fitted,
     /// The fitted dots blurred by the unit pixel box: covariance `Σ + I/12` px², volume kept
@@ -70,7 +70,7 @@ pub struct DisplacementConfig {
     pub quantities: Quantities,
     /// Default [`ArVariant::Bounds`]: the ratio of the two fits' own bounds (`crlb_grad /
     /// crlb_ref`), right under shot noise too; it needs the records' bounds (NaN bounds give no
-    /// AR). [`ArVariant::Notes`] is the closed form of ../shared/papers/NOTES.md §2 from the
+    /// AR). [`ArVariant::Notes`] is the closed form of docs/paper/NOTES.md §2 from the
     /// fitted shapes alone; [`ArVariant::Published`] only to reproduce published numbers.
     pub ar_variant: ArVariant,
     /// Default [`ArShapes::Fitted`].
@@ -168,7 +168,7 @@ pub struct PairDot {
     /// `[dx, dy] = gradient - reference` (px, docs/CONVENTIONS.md); `None` unless both fits are
     /// present and usable.
     pub displacement: Option<[f64; 2]>,
-    /// `[AR_x, AR_y]` (../shared/papers/NOTES.md §2); `None` when not requested or not
+    /// `[AR_x, AR_y]` (docs/paper/NOTES.md §2); `None` when not requested or not
     /// computable (non-positive amplitude, invalid shape).
     pub ar: Option<[f64; 2]>,
     /// `[u_ref_x, u_ref_y]`: single-image reference position uncertainty from the stack (px).
@@ -194,7 +194,7 @@ fn finite2(v: [f64; 2]) -> Option<[f64; 2]> {
 }
 
 /// Displacement, amplification ratio and displacement uncertainty of one pair
-/// (docs/CONVENTIONS.md, ../shared/papers/NOTES.md §2 and §4):
+/// (docs/CONVENTIONS.md, docs/paper/NOTES.md §2 and §4):
 ///
 /// - `d = x_grad - x_ref`, with `x_ref` the reference fit or the stack mean
 ///   ([`ReferencePosition`]; the fit where the stack has no mean for the dot);

@@ -2,7 +2,7 @@
 //! position uncertainty of a blurred dot to that of its reference dot. Here the uncertainty is
 //! the exact Cramér-Rao bound of the pixel model (`bostrack_model::crlb`, all 7 parameters
 //! free, the same read noise in both images), which an efficient fit reaches
-//! (../shared/CRATE-NOTES.md: std/CRLB 0.99); the fit-based Monte Carlo comes with the
+//! (std/CRLB 0.99, measured when the solver crates were chosen); the fit-based Monte Carlo comes with the
 //! pipeline.
 //!
 //! The full sweep with the worst cases is the `ar_vs_crlb` example.

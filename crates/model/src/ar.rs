@@ -1,4 +1,4 @@
-//! The amplification ratio (paper Eq. 37, corrected per ../shared/papers/NOTES.md §2).
+//! The amplification ratio (paper Eq. 37, corrected per docs/paper/NOTES.md §2).
 
 use bostrack_core::Gaussian2D;
 use serde::{Deserialize, Serialize};

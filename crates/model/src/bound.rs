@@ -1,4 +1,4 @@
-//! The exact Cramér-Rao bound of the pixel model (../shared/papers/NOTES.md §1, §3).
+//! The exact Cramér-Rao bound of the pixel model (docs/paper/NOTES.md §1, §3).
 
 use crate::pixel::{ModelKind, N_PARAMS, Sampling, pixel_gradient};
 use bostrack_core::{Gaussian2D, NoiseModel, Window};

@@ -1,7 +1,7 @@
 //! The paper's Monte Carlo (Rajendran, Bane & Vlachos, "Uncertainty amplification due to
 //! density/refractive-index gradients in volumetric PTV and BOS experiments", Exp. Fluids
 //! 61:139, 2020; Sec. 3, Table 1, Fig. 5), reproduced and extended, and the amplification
-//! ratio (Sec. 2.4, corrected per `../shared/papers/NOTES.md` §2) measured by Monte Carlo.
+//! ratio (Sec. 2.4, corrected per `docs/paper/NOTES.md` §2) measured by Monte Carlo.
 //!
 //! - [`run_study`] (`StudyConfig` → [`StudyResult`]): random setups over Table 1's ranges
 //!   ([`StudyConfig::volumetric`], or [`StudyConfig::bos`] where the blur matters), each dot

@@ -166,7 +166,7 @@ pub enum ReferencePosition {
 }
 
 /// Which amplification-ratio formula to use: the model crate's own (serde names `notes`,
-/// `bounds`, `published`; ../shared/papers/NOTES.md §2). The pipeline's default is `bounds`
+/// `bounds`, `published`; docs/paper/NOTES.md §2). The pipeline's default is `bounds`
 /// ([`UncertaintyConfig::default`]).
 pub use bostrack_model::ArVariant;
 

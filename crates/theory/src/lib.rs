@@ -1,6 +1,6 @@
 //! The paper as code: Rajendran, Bane & Vlachos, "Uncertainty amplification due to
 //! density/refractive-index gradients in volumetric PTV and BOS experiments" (Exp. Fluids 61:139,
-//! 2020), Sections 2 and 3, with the corrections of `../shared/papers/NOTES.md`
+//! 2020), Sections 2 and 3, with the corrections of `docs/paper/NOTES.md`
 //! (docs/theory.md walks through them equation by equation).
 //!
 //! - [`optics`](magnification) functions: magnification (Eq. 5), shift sensitivity and

@@ -1,5 +1,5 @@
 //! Imaging geometry and ray deflection: paper Eqs. 5, 6, 9, 10 and 24, with the corrections of
-//! `../shared/papers/NOTES.md` and docs/theory.md.
+//! `docs/paper/NOTES.md` and docs/theory.md.
 //!
 //! Frames. The *flow frame* holds the density derivatives given by the user. The *camera frame*
 //! has x to the right and y down as in the image (docs/CONVENTIONS.md) and z along the line of

@@ -9,7 +9,7 @@
 //! - `u_ref = sqrt( Σ_k (x_ik - s_k - m_i)² / (K_i - 1) )` in x and y: the standard
 //!   uncertainty of a *single* image's position of that dot,
 //! - K_i (images in which the dot was fitted) and the relative standard error of `u_ref`,
-//!   `1/sqrt(2(K_i - 1))` (../shared/papers/NOTES.md §4: 24 % for K = 10).
+//!   `1/sqrt(2(K_i - 1))` (docs/paper/NOTES.md §4: 24 % for K = 10).
 //!
 //! Dots fitted in fewer than `min_images` (default 3) images get no `u_ref`
 //! ([`StackStatus::TooFewImages`]). The displacement uncertainty then follows as

@@ -64,7 +64,7 @@ pub struct DotScatter {
     /// K < `min_images`.
     pub u: Option<[f64; 2]>,
     /// Relative standard error of `u`, `1/sqrt(2(K - 1))` (the large-K form for normal data,
-    /// ../shared/papers/NOTES.md §4; 24 % at K = 10). `None` with `u`.
+    /// docs/paper/NOTES.md §4; 24 % at K = 10). `None` with `u`.
     pub relative_standard_error: Option<f64>,
     pub status: StackStatus,
 }
