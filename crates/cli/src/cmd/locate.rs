@@ -5,7 +5,7 @@ use crate::jobs::JobsArg;
 use anyhow::Context as _;
 use bostrack_core::{DotFit, DotFlags, FitStatus, NoiseModel, table};
 use bostrack_detect::{DetectConfig, detect};
-use bostrack_fit::{Estimator, FitConfig, estimate_noise, fit_dots};
+use bostrack_fit::{Estimator, FitConfig, estimate_noise_detailed, fit_dots};
 use bostrack_io::Saturation;
 use bostrack_model::ModelKind;
 use bostrack_pipeline::CsvTable;
@@ -207,7 +207,9 @@ pub(crate) fn run(args: LocateArgs) -> anyhow::Result<Outcome> {
         )?),
         None => None,
     };
-    // The noise model: the flags when given, else estimated from the image itself.
+    // The noise model: the flags when given, else estimated from the image itself (then said
+    // with its standard errors, and whether the line was resolved).
+    let mut noise_note = String::new();
     let noise = match args.read_noise {
         Some(read_noise) => {
             if !(read_noise.is_finite()
@@ -226,12 +228,27 @@ pub(crate) fn run(args: LocateArgs) -> anyhow::Result<Outcome> {
                 offset: args.offset,
             }
         }
-        None => estimate_noise(&image, mask.as_ref()).with_context(|| {
-            format!(
-                "estimating the noise of {} (give --read-noise)",
-                args.image.display()
-            )
-        })?,
+        None => {
+            let fit = estimate_noise_detailed(&image, mask.as_ref()).with_context(|| {
+                format!(
+                    "estimating the noise of {} (give --read-noise)",
+                    args.image.display()
+                )
+            })?;
+            noise_note = format!(
+                " (from the image: read variance {:.0} ± {:.0} counts², gain {:.3} ± {:.3}{})",
+                fit.model.read_variance,
+                fit.read_variance_se,
+                fit.model.gain,
+                fit.gain_se,
+                if fit.resolved {
+                    ""
+                } else {
+                    "; line not resolved: read variance of the darkest pixels"
+                }
+            );
+            fit.model
+        }
     };
     let pool = args.jobs.pool(0)?;
     let (det, fits) = pool.install(|| -> anyhow::Result<_> {
@@ -248,7 +265,7 @@ pub(crate) fn run(args: LocateArgs) -> anyhow::Result<Outcome> {
         .filter(|f| f.flags.contains(DotFlags::MISSING))
         .count();
     eprintln!(
-        "{}: {} sites ({} missing), spacing {:.3} px, clip level {}, noise {:.2} counts + gain {:.3}, {} fits usable, {} not; wrote {}",
+        "{}: {} sites ({} missing), spacing {:.3} px, clip level {}, noise {:.2} counts + gain {:.3}{}, {} fits usable, {} not; wrote {}",
         args.image.display(),
         fits.len(),
         missing,
@@ -256,6 +273,7 @@ pub(crate) fn run(args: LocateArgs) -> anyhow::Result<Outcome> {
         clip,
         noise.read_variance.sqrt(),
         noise.gain,
+        noise_note,
         ok,
         fits.len() - ok,
         args.out.display()
