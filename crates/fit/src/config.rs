@@ -214,10 +214,11 @@ impl Default for FitConfig {
 impl FitConfig {
     /// Checks the numbers (the enums are valid by construction).
     pub fn validate(&self) -> Result<(), FitError> {
-        if self.max_iterations == 0 {
-            return Err(FitError::InvalidConfig(
-                "max_iterations must be at least 1".into(),
-            ));
+        if !(1..=MAX_ITERATIONS).contains(&self.max_iterations) {
+            return Err(FitError::InvalidConfig(format!(
+                "max_iterations must lie in 1..={MAX_ITERATIONS}, got {}",
+                self.max_iterations
+            )));
         }
         if !(self.tolerance.is_finite() && self.tolerance > 0.0) {
             return Err(FitError::InvalidConfig(format!(
@@ -251,6 +252,10 @@ impl FitConfig {
 
 /// Largest accepted `neighbour_passes`.
 pub const MAX_NEIGHBOUR_PASSES: u32 = 100;
+
+/// Largest accepted `max_iterations` (the default is 50; a fit that has not converged in a few
+/// hundred Levenberg-Marquardt steps does not converge).
+pub const MAX_ITERATIONS: u32 = 1000;
 
 #[cfg(test)]
 mod tests {

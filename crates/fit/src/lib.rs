@@ -68,7 +68,8 @@ mod start;
 pub mod study;
 
 pub use config::{
-    AUTO_SIGMA, Estimator, FitConfig, FitSampling, MAX_NEIGHBOUR_PASSES, Neighbours, Solver,
+    AUTO_SIGMA, Estimator, FitConfig, FitSampling, MAX_ITERATIONS, MAX_NEIGHBOUR_PASSES,
+    Neighbours, Solver,
 };
 pub use dots::{
     NeighbourTails, PassReport, TAILS_MAX_SHIFT, fit_dots, fit_dots_report, refit_dots,

@@ -182,9 +182,8 @@ impl Plan {
 /// Most no-flow stack files a plan accepts (every stack image is held in memory).
 pub const MAX_STACK_FILES: usize = 1000;
 
-/// Most iterations per fit `[fit] max_iterations` may ask for (the default is 50; a fit that
-/// has not converged in a few hundred Levenberg-Marquardt steps does not converge).
-pub const MAX_FIT_ITERATIONS: u32 = 1000;
+/// Most iterations per fit `[fit] max_iterations` may ask for ([`bostrack_fit::MAX_ITERATIONS`]).
+pub const MAX_FIT_ITERATIONS: u32 = bostrack_fit::MAX_ITERATIONS;
 
 struct Validator<'a> {
     file: &'a Path,
@@ -282,11 +281,8 @@ impl Validator<'_> {
             };
             return Err(self.invalid(&key, e.to_string()));
         }
-        cfg.fit
-            .validate()
-            .map_err(|e| self.invalid("fit", e.to_string()))?;
-        // every value that scales the work is bounded (the other [fit] bounds are in
-        // FitConfig::validate)
+        // every value that scales the work is bounded (the [fit] bounds are in
+        // FitConfig::validate; this one named with its key)
         if cfg.fit.max_iterations > MAX_FIT_ITERATIONS {
             return Err(self.invalid(
                 "fit.max_iterations",
@@ -296,6 +292,9 @@ impl Validator<'_> {
                 ),
             ));
         }
+        cfg.fit
+            .validate()
+            .map_err(|e| self.invalid("fit", e.to_string()))?;
         if cfg.run.jobs > MAX_JOBS {
             return Err(self.invalid(
                 "run.jobs",
