@@ -88,11 +88,19 @@ pub const STUDY_CSV_COLUMNS: &str = "scene,method,estimator,model,sampling,solve
 
 /// Writes the rows as CSV (header [`STUDY_CSV_COLUMNS`]).
 pub fn write_study_csv(mut out: impl Write, rows: &[StudyRow]) -> std::io::Result<()> {
+    // an unknown value (NaN: nothing scored) is the empty field, as in every table
+    let f = |v: f64, decimals: usize| {
+        if v.is_finite() {
+            format!("{v:.decimals$}")
+        } else {
+            String::new()
+        }
+    };
     writeln!(out, "{STUDY_CSV_COLUMNS}")?;
     for r in rows {
         writeln!(
             out,
-            "{},{},{},{},{},{},{},{},{},{:.4},{:.6},{:.6},{:.4},{:.4},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{:.5},{:.3}",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
             r.scene,
             r.method,
             r.estimator,
@@ -102,19 +110,19 @@ pub fn write_study_csv(mut out: impl Write, rows: &[StudyRow]) -> std::io::Resul
             r.neighbours,
             r.dots,
             r.failures,
-            r.failure_rate,
-            r.rms_x,
-            r.rms_y,
-            r.rms_over_bound_x,
-            r.rms_over_bound_y,
-            r.bias_x,
-            r.bias_y,
-            r.bias_err_x,
-            r.bias_err_y,
-            r.bound_x,
-            r.bound_y,
-            r.sigma_x_rel_bias,
-            r.us_per_dot
+            f(r.failure_rate, 4),
+            f(r.rms_x, 6),
+            f(r.rms_y, 6),
+            f(r.rms_over_bound_x, 4),
+            f(r.rms_over_bound_y, 4),
+            f(r.bias_x, 6),
+            f(r.bias_y, 6),
+            f(r.bias_err_x, 6),
+            f(r.bias_err_y, 6),
+            f(r.bound_x, 6),
+            f(r.bound_y, 6),
+            f(r.sigma_x_rel_bias, 5),
+            f(r.us_per_dot, 3),
         )?;
     }
     Ok(())

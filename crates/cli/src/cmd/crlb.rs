@@ -288,7 +288,9 @@ fn sweep_csv_row(first: &str, r: &SweepRow) -> String {
         match k {
             2 => s.push_str(&opt(r.z_d_m)),
             3 => s.push_str(&opt(r.m_z_d_m)),
-            _ => s.push_str(&v.to_string()),
+            // (an unknown value is the empty field, as in every table)
+            _ if v.is_finite() => s.push_str(&v.to_string()),
+            _ => {}
         }
     }
     s.push(',');
