@@ -172,7 +172,8 @@ pub enum PipelineError {
     #[error("{}: {message}", path.display())]
     NoDots { path: PathBuf, message: String },
 
-    /// A failure of the reference side (noise model, detection, fits) while a mask limits the
+    /// A failure of the reference side (noise model, detection, fits) or of a frame (detection,
+    /// fits) while a mask limits the
     /// usable pixels: the message names the mask too, since it may be the cause.
     #[error("{source} (the mask {} keeps {kept} of its {total} pixels)", mask.display())]
     Masked {

@@ -5,7 +5,7 @@ use bostrack_core::{DotFlags, Image, ImageMeta};
 use bostrack_displacement::COLUMNS;
 use bostrack_pipeline::{
     ConfigError, PipelineError, Plan, ReferenceContext, frame_is_complete, process_frame,
-    write_frame,
+    process_image, write_frame,
 };
 use bostrack_synth::{DisplacementField, FlowConfig, Scene, SceneConfig, stack};
 use std::fs;
@@ -507,6 +507,26 @@ fn a_mask_that_leaves_too_little_names_itself_in_the_error() {
     let msg = e.to_string();
     assert!(
         msg.starts_with(&format!("{}: mask keeps no pixel", mask.display())),
+        "{msg}"
+    );
+}
+
+/// A gradient frame that fails under a mask names the mask too (as the reference side does).
+#[test]
+fn a_frame_that_fails_under_a_mask_names_the_mask() {
+    let (root, cfg) = campaign("mask = \"mask.png\"\n");
+    let mask = write_logical_mask(root.path(), |x, _| x >= 4);
+    let plan = Plan::load(&cfg).unwrap();
+    let ctx = ReferenceContext::prepare(&plan).unwrap();
+    // a frame without dots: its detection fails
+    let (w, h) = ctx.image_size();
+    let blank = Image::new(w, h, vec![100.0; w * h], ImageMeta::default()).unwrap();
+    let e = process_image(&ctx, &plan, &blank, Path::new("blank.tif")).unwrap_err();
+    let msg = e.to_string();
+    assert!(matches!(e, PipelineError::Masked { .. }), "{e:?}");
+    assert!(msg.starts_with("blank.tif"), "{msg}");
+    assert!(
+        msg.contains(&format!("the mask {}", mask.display())),
         "{msg}"
     );
 }

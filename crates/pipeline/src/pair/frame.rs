@@ -45,11 +45,29 @@ pub(crate) fn track_image(
         });
     }
     bostrack_detect::track(img, ctx.mask.as_ref(), &ctx.detection, &plan.detect).map_err(|e| {
-        PipelineError::Detect {
-            path: path.to_path_buf(),
-            source: e,
-        }
+        with_mask(
+            ctx,
+            plan,
+            PipelineError::Detect {
+                path: path.to_path_buf(),
+                source: e,
+            },
+        )
     })
+}
+
+/// A failure of a frame's detection or fits while a mask limits the usable pixels names the
+/// mask too (as the reference side's do), since it may be the cause.
+fn with_mask(ctx: &ReferenceContext, plan: &Plan, e: PipelineError) -> PipelineError {
+    match (&ctx.mask, &plan.mask) {
+        (Some(m), Some(path)) => PipelineError::Masked {
+            mask: path.clone(),
+            kept: m.count_kept(),
+            total: m.width() * m.height(),
+            source: Box::new(e),
+        },
+        _ => e,
+    }
 }
 
 /// The median displacement of the tracked dots from the reference seeds (track keeps the
@@ -137,9 +155,15 @@ pub(crate) fn fit_match_timed(
     } else {
         bostrack_fit::fit_dots(img, mask, &tracked.seeds, &plan.fit, &ctx.noise)
     }
-    .map_err(|e| PipelineError::Fit {
-        path: path.to_path_buf(),
-        source: e,
+    .map_err(|e| {
+        with_mask(
+            ctx,
+            plan,
+            PipelineError::Fit {
+                path: path.to_path_buf(),
+                source: e,
+            },
+        )
     })?;
     if let Some(t) = times.as_deref_mut() {
         t.push("fit", sw.lap());
