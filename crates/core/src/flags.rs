@@ -98,7 +98,8 @@ bit_flags! {
     /// The dot is much fainter than its neighbours.
     FAINT = 2, "faint";
     /// No dot at this lattice site: the detector found none, and neither did the fit of the site
-    /// (shape held at the image's median dot: no amplitude of 4.5 standard deviations).
+    /// (shape held at the image's median dot: no amplitude of 3.5 standard deviations at the
+    /// predicted site, nor of 4.5 with the position free in the window).
     MISSING = 3, "missing";
     /// Shape or intensity far from the neighbours' (target defect).
     DEFECT = 4, "defect";

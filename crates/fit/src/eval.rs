@@ -171,6 +171,8 @@ pub(crate) enum Kind {
     Circular,
     /// Position, amplitude and background only, the shape (σx, σy, ρ) held where it starts.
     FixedShape,
+    /// Amplitude and background only (a linear fit: shape and position held).
+    Linear,
 }
 
 impl Kind {
@@ -188,6 +190,7 @@ impl Kind {
             Kind::AxisAligned => &[IX, IY, IA, IU, IV, IB],
             Kind::Circular => &[IX, IY, IA, IU, IB],
             Kind::FixedShape => &[IX, IY, IA, IB],
+            Kind::Linear => &[IA, IB],
         }
     }
     pub fn n_free(self) -> usize {
@@ -227,7 +230,7 @@ impl Kind {
     /// Puts θ on the model's manifold (ρ = 0, σy = σx as the kind requires).
     pub fn constrain(self, theta: &mut Theta) {
         match self {
-            Kind::Elliptical | Kind::FixedShape => {}
+            Kind::Elliptical | Kind::FixedShape | Kind::Linear => {}
             Kind::AxisAligned => theta[IT] = 0.0,
             Kind::Circular => {
                 let m = 0.5 * (theta[IU] + theta[IV]);

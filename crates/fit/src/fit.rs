@@ -74,9 +74,14 @@ pub struct Fitter {
 /// (a singular fit of a window the detector found a dot in).
 const FIXED_SHAPE_MIN_Z: f64 = 5.0;
 
-/// The same for a lattice site the detector found no dot at: whether a dot is there is decided
-/// by this amplitude significance of its held-shape fit (the position free within the window).
-/// Measured false-alarm rate on empty sites: see `crates/pipeline/tests/faint.rs`.
+/// A lattice site the detector found no dot at holds one where a dot of the image's median
+/// shape centred at the site's predicted position has an amplitude of this many standard
+/// deviations (a linear fit: standard normal without a dot, 2.3e-4 per empty site)...
+const PRESENCE_SITE_MIN_Z: f64 = 3.5;
+
+/// ... or where the fit of such a dot with its position free in the window reaches this many
+/// (the prediction may be off; the search over positions raises the false-alarm rate, measured
+/// in `crates/pipeline/tests/faint.rs`).
 const PRESENCE_MIN_Z: f64 = 4.5;
 
 /// Whether θ has the shape (σx, σy, ρ) of `g`.
@@ -374,8 +379,9 @@ impl Fitter {
 
     /// Whether the pixels loaded in the workspace hold a dot near `start` (a lattice site where
     /// the detector found none): a least-squares fit with the shape held at
-    /// [`Fitter::fixed_shape`] (the image's median dot) that converges with an amplitude of at
-    /// least [`PRESENCE_MIN_Z`] standard deviations and a position bound within a pixel;
+    /// [`Fitter::fixed_shape`] (the image's median dot) whose amplitude at the site reaches
+    /// [`PRESENCE_SITE_MIN_Z`] standard deviations, or that converges with its position free and
+    /// an amplitude of at least [`PRESENCE_MIN_Z`], with a position bound within a pixel;
     /// then the full fit from there ([`Fitter::fit_loaded`], which holds the shape again where
     /// the full fit is singular). `None`: no dot (or no least-squares fit, no median shape).
     pub(crate) fn fit_loaded_present(
@@ -393,10 +399,43 @@ impl Fitter {
             return None;
         }
         let bounds = Bounds::for_window(ws.wx, ws.wy, ws.w, ws.h);
-        let held = self.solve_fixed_shape(start, None, &bounds, noise, shape, PRESENCE_MIN_Z)?;
+        // a dot at the lattice site itself (a linear fit), or anywhere in the window at a higher
+        // bar (the lattice's prediction may be off)
+        let at_site = self
+            .amplitude_z_at(start, &bounds, noise, shape)
+            .is_some_and(|z| z >= PRESENCE_SITE_MIN_Z);
+        let min_z = if at_site { 0.0 } else { PRESENCE_MIN_Z };
+        let held = self.solve_fixed_shape(start, None, &bounds, noise, shape, min_z)?;
         let g = gaussian_from_theta(&held.theta);
         let fit = self.fit_loaded(flags, [g.x0, g.y0], Some(&g), noise);
         fit.status.is_ok().then_some(fit)
+    }
+
+    /// The amplitude of a dot of shape `shape` centred at `at`, in its standard deviations
+    /// (amplitude and background fitted: a linear fit, whose z is standard normal where there
+    /// is no dot); `None` where that cannot be fitted.
+    fn amplitude_z_at(
+        &mut self,
+        at: [f64; 2],
+        bounds: &Bounds,
+        noise: &NoiseModel,
+        shape: [f64; 3],
+    ) -> Option<f64> {
+        let t = self.start_theta(at, None, bounds);
+        let mut g = gaussian_from_theta(&t);
+        (g.x0, g.y0) = (at[0], at[1]);
+        (g.sigma_x, g.sigma_y, g.rho) = (shape[0], shape[1], shape[2]);
+        let theta0 = theta_from_gaussian(&g);
+        let kind = std::mem::replace(&mut self.kind, Kind::Linear);
+        let out = self.solve(theta0, bounds, noise);
+        self.kind = kind;
+        if !out.status.is_ok() {
+            return None;
+        }
+        let mut e = [0.0; 7];
+        e[0] = 1.0; // the amplitude (free parameters amplitude, background)
+        let var = crate::solver::solve_damped(&out.fisher, &e, 2, 0.0)?[0];
+        (var > 0.0).then(|| out.theta[crate::eval::IA] / var.sqrt())
     }
 
     /// The fit again from its start with the shape held at `shape` (σx, σy, ρ): position,
@@ -435,6 +474,10 @@ impl Fitter {
             FitSampling::Integrated => self.solve_with(theta0, bounds, noise, Sampling::Integrated),
             FitSampling::Auto => self.solve_auto(theta0, bounds, noise),
         };
+        if self.kind == Kind::Linear {
+            // (no position among the free parameters)
+            return out;
+        }
         out.bound = position_bound(&out.fisher, self.kind.n_free());
         // a fit whose position bound exceeds a pixel holds no position information: no dot
         if out.status.is_ok()

@@ -1,7 +1,9 @@
 //! Faint dots (issue #14, finding 2): whether a lattice site holds a dot is decided by its fit,
 //! not only by the detector's threshold. A site the detector calls empty is fitted with the
-//! shape held at the image's median dot, and holds a dot where that fit's amplitude is at least
-//! 4.5 standard deviations (`bostrack_fit`, `PRESENCE_MIN_Z`).
+//! shape held at the image's median dot; it holds a dot where the amplitude at the predicted
+//! site reaches 3.5 standard deviations (a linear fit: 2.3e-4 false alarms per empty site), or
+//! that of the fit with its position free in the window reaches 4.5 (`bostrack_fit`,
+//! `PRESENCE_SITE_MIN_Z`, `PRESENCE_MIN_Z`).
 //!
 //! Scenes from the generator (σ 1.25 px, spacing 10 px rotated by 2°, read noise 10 counts and
 //! shot noise on a background of 150, so 15.8 counts of noise at the background; each dot's
@@ -99,20 +101,21 @@ fn peak_snr_6_misses_and_fails_at_most_half_a_percent() {
     assert_eq!(s.spurious, 0, "{s:?}");
 }
 
-/// Peak SNR 3.5: the detector alone misses several percent of the dots; the fit finds all but
-/// a few, and no empty site becomes a dot.
+/// Peak SNR 3.5: the detector alone misses 6 % of the dots (152 of 2,401); after the fits at
+/// most 0.5 % are missed (11) and 0.5 % failed, and no empty site becomes a dot.
 #[test]
 fn peak_snr_3_5_dots_the_detector_misses_are_found_by_their_fit() {
     let s = score(55.0, 0.05, 512, 5);
     let n = dots(&s);
     assert!(s.detector_missed * 100 >= 3 * n, "{s:?}");
-    assert!(s.missed * 100 <= 2 * n, "{s:?}");
+    assert!(s.missed * 200 <= n, "{s:?}");
     assert!(s.failed * 200 <= n, "{s:?}");
     assert_eq!(s.spurious, 0, "{s:?}");
 }
 
 /// The false-alarm rate of the presence test, on a target with 30 % of its dots left out at
-/// peak SNR 6: at most 2 of ~800 empty sites become dots (1 of 2,963 on a 1-MP image).
+/// peak SNR 6: at most 2 of ~700 empty sites become dots (measured: 1 of 716 here, 1 of 2,963
+/// on a 1-MP image; expected from the site test alone 2.3e-4 per empty site).
 #[test]
 fn empty_sites_seldom_become_dots() {
     let s = score(95.0, 0.3, 512, 77);
