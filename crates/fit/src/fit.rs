@@ -421,21 +421,46 @@ impl Fitter {
         noise: &NoiseModel,
         shape: [f64; 3],
     ) -> Option<f64> {
-        let t = self.start_theta(at, None, bounds);
+        let (out, z) = self.solve_held(Kind::Linear, at, None, Some(at), bounds, noise, shape)?;
+        out.status.is_ok().then_some(z)
+    }
+
+    /// A least-squares fit of `kind` (`FixedShape` or `Linear`) from the start's moments (or
+    /// `hint`) with the shape set to `shape` (σx, σy, ρ) and, with `at`, the centre there; the
+    /// outcome and its amplitude in standard deviations (`None`: no amplitude variance).
+    #[allow(clippy::too_many_arguments)]
+    fn solve_held(
+        &mut self,
+        kind: Kind,
+        start: [f64; 2],
+        hint: Option<&Gaussian2D>,
+        at: Option<[f64; 2]>,
+        bounds: &Bounds,
+        noise: &NoiseModel,
+        shape: [f64; 3],
+    ) -> Option<(Outcome, f64)> {
+        let t = self.start_theta(start, hint, bounds);
         let mut g = gaussian_from_theta(&t);
-        (g.x0, g.y0) = (at[0], at[1]);
-        (g.sigma_x, g.sigma_y, g.rho) = (shape[0], shape[1], shape[2]);
-        let theta0 = theta_from_gaussian(&g);
-        let kind = std::mem::replace(&mut self.kind, Kind::Linear);
-        let out = self.solve(theta0, bounds, noise);
-        self.kind = kind;
-        if !out.status.is_ok() {
-            return None;
+        if let Some([x, y]) = at {
+            (g.x0, g.y0) = (x, y);
         }
+        (g.sigma_x, g.sigma_y, g.rho) = (shape[0], shape[1], shape[2]);
+        let mut theta0 = theta_from_gaussian(&g);
+        if at.is_none() {
+            bounds.project(&mut theta0);
+        }
+        let saved = std::mem::replace(&mut self.kind, kind);
+        let out = self.solve(theta0, bounds, noise);
+        self.kind = saved;
+        // the amplitude's row among the free parameters
+        let k = kind.free().iter().position(|&p| p == crate::eval::IA)?;
         let mut e = [0.0; 7];
-        e[0] = 1.0; // the amplitude (free parameters amplitude, background)
-        let var = crate::solver::solve_damped(&out.fisher, &e, 2, 0.0)?[0];
-        (var > 0.0).then(|| out.theta[crate::eval::IA] / var.sqrt())
+        e[k] = 1.0;
+        let var = crate::solver::solve_damped(&out.fisher, &e, kind.n_free(), 0.0)?[k];
+        (var > 0.0).then(|| {
+            let z = out.theta[crate::eval::IA] / var.sqrt();
+            (out, z)
+        })
     }
 
     /// The fit again from its start with the shape held at `shape` (σx, σy, ρ): position,
@@ -451,21 +476,9 @@ impl Fitter {
         shape: [f64; 3],
         min_z: f64,
     ) -> Option<Outcome> {
-        let t = self.start_theta(start, hint, bounds);
-        let mut g = gaussian_from_theta(&t);
-        (g.sigma_x, g.sigma_y, g.rho) = (shape[0], shape[1], shape[2]);
-        let mut theta0 = theta_from_gaussian(&g);
-        bounds.project(&mut theta0);
-        let kind = std::mem::replace(&mut self.kind, Kind::FixedShape);
-        let out = self.solve(theta0, bounds, noise);
-        self.kind = kind;
-        if !out.status.is_ok() {
-            return None;
-        }
-        let mut e = [0.0; 7];
-        e[2] = 1.0; // the amplitude (free parameters x, y, amplitude, background)
-        let var = crate::solver::solve_damped(&out.fisher, &e, 4, 0.0)?[2];
-        (var > 0.0 && out.theta[crate::eval::IA] >= min_z * var.sqrt()).then_some(out)
+        let (out, z) =
+            self.solve_held(Kind::FixedShape, start, hint, None, bounds, noise, shape)?;
+        (out.status.is_ok() && z >= min_z).then_some(out)
     }
 
     fn solve(&mut self, theta0: Theta, bounds: &Bounds, noise: &NoiseModel) -> Outcome {
