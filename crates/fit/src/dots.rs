@@ -254,9 +254,7 @@ fn median_shape(fits: &[DotFit]) -> Option<[f64; 3]> {
         return None;
     }
     let median = |get: fn(&Gaussian2D) -> f64| {
-        let mut v: Vec<f64> = good.iter().map(|g| get(g)).collect();
-        let mid = v.len() / 2;
-        *v.select_nth_unstable_by(mid, f64::total_cmp).1
+        bostrack_core::median(&mut good.iter().map(|g| get(g)).collect::<Vec<f64>>())
     };
     Some([
         median(|g| g.sigma_x),
@@ -761,11 +759,12 @@ impl<'a> Iteration<'a> {
                     // a site the detector found no dot at is looked for once, in the first full
                     // pass that knows the image's dot shape (see `Fitter::fit_loaded_present`);
                     // where a dot is found it is fitted as every other from then on
-                    let look_for = absent(s, &prev[i])
+                    let empty = absent(s, &prev[i]);
+                    let look_for = empty
                         && self.fixed_shape.is_some()
                         && !kind.intermediate
                         && select.is_none();
-                    if (absent(s, &prev[i]) && !look_for) || select.is_some_and(|sel| !sel[i]) {
+                    if (empty && !look_for) || select.is_some_and(|sel| !sel[i]) {
                         return None;
                     }
                     let flags = f.load_image(img, mask, s.window);
@@ -910,14 +909,8 @@ impl<'a> Neighbourhood<'a> {
     /// The models of `fits` (the first ones of an iteration: they also set the gate).
     fn new(fits: &[DotFit], seeds: &'a [Seed], sampling: FitSampling) -> Neighbourhood<'a> {
         let gate = Plausible::of(fits);
-        let models: Vec<Option<NeighbourModel>> = fits
-            .par_iter()
-            .map(|f| {
-                gate.admits(f)
-                    .then(|| NeighbourModel::new(f, sampling))
-                    .flatten()
-            })
-            .collect();
+        let models: Vec<Option<NeighbourModel>> =
+            fits.par_iter().map(|f| gate.model(f, sampling)).collect();
         let index = NeighbourIndex::new(&models);
         Neighbourhood {
             seeds,
@@ -933,12 +926,7 @@ impl<'a> Neighbourhood<'a> {
     /// must be rebuilt ([`Neighbourhood::reindex`]): the dot appeared, moved to another bucket
     /// or reaches further than the index looks.
     fn set(&mut self, j: usize, fit: &DotFit, sampling: FitSampling) -> bool {
-        let Some(new) = self
-            .gate
-            .admits(fit)
-            .then(|| NeighbourModel::new(fit, sampling))
-            .flatten()
-        else {
+        let Some(new) = self.gate.model(fit, sampling) else {
             return true;
         };
         let in_place = self.models[j].as_ref().is_some_and(|a| {
@@ -1287,17 +1275,22 @@ impl Plausible {
             .filter(usable)
             .map(|f| f.params.amplitude)
             .collect();
+        // (no usable fit: no bound)
         let median = |v: &mut Vec<f64>| {
-            if v.is_empty() {
-                return f64::INFINITY;
-            }
-            let mid = v.len() / 2;
-            *v.select_nth_unstable_by(mid, f64::total_cmp).1
+            let m = bostrack_core::median(v);
+            if m.is_nan() { f64::INFINITY } else { m }
         };
         Plausible {
             max_sigma: MAX_SIGMA_RATIO * median(&mut sig),
             max_amplitude: MAX_AMPLITUDE_RATIO * median(&mut amp),
         }
+    }
+
+    /// The neighbour model of `f` where the gate admits it.
+    fn model(&self, f: &DotFit, sampling: FitSampling) -> Option<NeighbourModel> {
+        self.admits(f)
+            .then(|| NeighbourModel::new(f, sampling))
+            .flatten()
     }
 
     fn admits(&self, f: &DotFit) -> bool {
