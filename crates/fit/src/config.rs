@@ -130,6 +130,7 @@ pub enum Neighbours {
 /// neighbours = "subtract"   # "subtract" | "none"
 /// neighbour_passes = 40     # at most this many neighbour passes (1 to 100)
 /// neighbour_tolerance = 0.1 # a dot is converged with its neighbours below this (bound units)
+/// ghosts = true             # model the lattice sites just outside the image as neighbours
 /// residual_false_alarm = 1e-6 # χ² test of each window's residual ("residual" flag); 0: off
 /// bound = true              # compute the per-dot Cramér-Rao bound (crlb_x, crlb_y)
 /// ```
@@ -179,6 +180,16 @@ pub struct FitConfig {
     /// pull (or own last move) is still above 5 × this after the last pass is flagged
     /// `unconverged`.
     pub neighbour_tolerance: f64,
+    /// With `neighbours = "subtract"`: model the lattice sites just outside the image whose
+    /// light reaches into it (default true). From pass 2 on, each site one lattice step beyond
+    /// the outermost seeds (extrapolated along the lattice from their fits) is a **ghost**: a
+    /// dot of the image's median shape at that position whose amplitude and background are
+    /// fitted on the part of its window inside the image (kept where its amplitude reaches 3.5
+    /// standard deviations); it is subtracted from its neighbours' windows like any neighbour
+    /// and never reported. Without them the windows along the image edge of a dense target hold
+    /// light no model accounts for: on `testdata/scenes/dense_vortex` (spacing 7 px, σ 1.6 px)
+    /// 97.1 % of the dots were valid, the edge ones failing the χ² test; with them 99.0 %.
+    pub ghosts: bool,
     /// False-alarm rate of the per-dot χ² test of the window residual (default 1e-6; 0 turns the
     /// test off; checked at 0.01 on synthetic images, test
     /// `residual_test_flags_at_its_false_alarm_rate_and_catches_a_speck`). Real dots have heavier
@@ -205,6 +216,7 @@ impl Default for FitConfig {
             neighbours: Neighbours::Subtract,
             neighbour_passes: 40,
             neighbour_tolerance: 0.1,
+            ghosts: true,
             residual_false_alarm: 1e-6,
             bound: true,
         }

@@ -7,10 +7,11 @@ use crate::eval::{IA, conditional_sigma, pixel_blur, theta_from_gaussian};
 use crate::fit::Fitter;
 use crate::joint::JointDot;
 use bostrack_core::{
-    DotFit, DotFlags, FitStatus, Gaussian2D, Image, Mask, NoiseModel, Seed, Window,
+    DotFit, DotFlags, FitStatus, Gaussian2D, GridIndex, Image, Mask, NoiseModel, Seed, Window,
 };
 use bostrack_model::Sampling;
 use rayon::prelude::*;
+use std::collections::{BTreeMap, HashMap};
 
 /// Sigmas beyond which a neighbour's dot is taken as zero (exp(-12.5) ≈ 4e-6 of its peak).
 const REACH_SIGMAS: f64 = 5.0;
@@ -137,6 +138,7 @@ pub fn fit_dots_report(
     let fits: Vec<DotFit> = first.iter().map(|i| i.fit).collect();
     it.fixed_shape = median_shape(&fits);
     hood.update(&first, cfg.sampling);
+    hood.set_ghosts(it.ghosts(&fits, &hood));
     let second = it.pass(
         &fits,
         PassKind {
@@ -148,6 +150,8 @@ pub fn fit_dots_report(
         &mut canvas_buf,
     );
     hood.update(&second, cfg.sampling);
+    let fits: Vec<DotFit> = second.iter().map(|i| i.fit).collect();
+    hood.set_ghosts(it.ghosts(&fits, &hood));
     Ok(it.converge(second, vec![n_fit, n_fit], hood, &mut canvas_buf))
 }
 
@@ -205,6 +209,7 @@ pub fn refit_dots_report(
         let mut it = Iteration::new(img, mask, seeds, cfg, noise);
         it.fixed_shape = median_shape(prior);
         let mut hood = Neighbourhood::new(prior, seeds, cfg.sampling);
+        hood.set_ghosts(it.ghosts(prior, &hood));
         let first = it.pass(
             prior,
             PassKind {
@@ -463,6 +468,71 @@ impl<'a> Iteration<'a> {
         }
     }
 
+    /// The ghosts of the image (set into `hood` by the caller): every lattice site next to a
+    /// fitted seed that holds no seed and whose centre lies outside the image, at the position
+    /// extrapolated along the lattice from its neighbours' fits (the mean over the seeds next
+    /// to it), modelled as a dot of the image's median shape with its amplitude and background
+    /// fitted on the part of its window inside the image, the neighbours' models subtracted;
+    /// kept where that amplitude is significant (a printed dot is there) and the gate admits
+    /// it. Without them the windows along the image's edge hold light that no model accounts
+    /// for (issue #13: the edge dots of a dense target failed the χ² test). None before the
+    /// median shape is known.
+    fn ghosts(&self, fits: &[DotFit], hood: &Neighbourhood) -> Vec<NeighbourModel> {
+        let Some(shape) = self.fixed_shape.filter(|_| self.cfg.ghosts) else {
+            return Vec::new();
+        };
+        let (w, h) = (self.img.width(), self.img.height());
+        let sites = ghost_sites(self.seeds, fits, w, h);
+        if sites.is_empty() {
+            return Vec::new();
+        }
+        // (wider than a seed's window: a site a few px outside still shows its visible part)
+        let half = (self.half + 2) as usize;
+        let (img, mask, noise, cfg) = (self.img, self.mask, self.noise, self.cfg);
+        sites
+            .par_iter()
+            .map_init(
+                || (Fitter::new(cfg), Vec::new()),
+                |(f, near), &(index, at)| {
+                    let reach = Window::centred(at[0].round(), at[1].round(), half);
+                    let win = reach.clip(w, h)?;
+                    f.load_image(img, mask, win);
+                    hood.index.near(win, near);
+                    for &j in near.iter() {
+                        let Some(m) = hood.models[j].as_ref() else {
+                            continue;
+                        };
+                        if hood.is_ghost(j) || !m.reaches(win) {
+                            continue;
+                        }
+                        let ws = &mut f.ws;
+                        crate::eval::dot_factor(ws, &m.theta, m.sampling);
+                        m.clip_to_box(ws);
+                        let amp = m.theta[IA];
+                        for k in 0..ws.len() {
+                            ws.data[k] -= ws.keep[k] * amp * ws.tmp[k];
+                        }
+                    }
+                    let params = f.fit_loaded_ghost(at, reach, noise, shape)?;
+                    let fit = DotFit {
+                        index,
+                        params,
+                        crlb_x: f64::NAN,
+                        crlb_y: f64::NAN,
+                        rms: f64::NAN,
+                        iterations: 0,
+                        status: FitStatus::Converged,
+                        flags: DotFlags::NONE,
+                    };
+                    hood.gate.model(&fit, cfg.sampling)
+                },
+            )
+            .collect::<Vec<Option<NeighbourModel>>>()
+            .into_iter()
+            .flatten()
+            .collect()
+    }
+
     /// Passes from `passes + 1` on (`items`: the result of pass `passes`), each refitting only
     /// the dots whose neighbours moved by enough, until none is left or the pass limit; then the
     /// flags (`UNCONVERGED`, `RESIDUAL`).
@@ -490,12 +560,30 @@ impl<'a> Iteration<'a> {
             for (o, p) in owed.iter_mut().zip(&now) {
                 *o += p;
             }
-            let select: Vec<bool> = owed
+            let mut select: Vec<bool> = owed
                 .iter()
                 .zip(&strikes)
                 .map(|(&p, &k)| p > tol && k < STRIKES)
                 .collect();
-            let count = select.iter().filter(|&&s| s).count();
+            let mut count = select.iter().filter(|&&s| s).count();
+            if count > 0 {
+                // red-black ordering: each pass refits the dots of one colour of the lattice's
+                // checkerboard ((i + j) mod 2, alternating), so that a dot's four nearest
+                // neighbours enter its refit already refitted (a Gauss-Seidel sweep in two
+                // parallel halves: 26 % fewer refits than Jacobi on the real gradient frame);
+                // the other colour where this one has nothing left to do
+                let colour = |s: &Seed| (s.index.i + s.index.j).rem_euclid(2) as u32 == passes % 2;
+                let mine: Vec<bool> = select
+                    .iter()
+                    .zip(self.seeds)
+                    .map(|(&x, s)| x && colour(s))
+                    .collect();
+                let n_mine = mine.iter().filter(|&&s| s).count();
+                if n_mine > 0 {
+                    select = mine;
+                    count = n_mine;
+                }
+            }
             if count == 0 || passes >= self.cfg.neighbour_passes {
                 let mut unconverged = 0;
                 let limit = UNCONVERGED_FACTOR * tol;
@@ -594,6 +682,7 @@ impl<'a> Iteration<'a> {
                     hood.touching(i, win, near, |j, m, same| {
                         // (a neighbour whose own fit is not admitted as a model is left out)
                         if same
+                            || hood.is_ghost(j)
                             || !hood.gate.admits(&fits[j])
                             || m.share_in(win) < crate::joint::MIN_SHARE
                         {
@@ -613,22 +702,9 @@ impl<'a> Iteration<'a> {
             if groups.iter().all(Option::is_none) {
                 return finish(items, self.cfg);
             }
-            // which pixels a fit may use, once for the image (the joint bound reads each window
-            // and its neighbours' windows)
-            let usable: Vec<bool> = (0..h)
-                .into_par_iter()
-                .flat_map_iter(|y| {
-                    (0..w)
-                        .map(move |x| crate::joint::usable(self.img, self.mask, x as i64, y as i64))
-                })
-                .collect();
-            let keep = |x: i64, y: i64| {
-                x >= 0
-                    && y >= 0
-                    && (x as usize) < w
-                    && (y as usize) < h
-                    && usable[y as usize * w + x as usize]
-            };
+            // which pixels a fit may use (read only for the few dots with a joint group: a
+            // whole-image table cost more than all their bounds)
+            let keep = |x: i64, y: i64| crate::joint::usable(self.img, self.mask, x, y);
             let bounds: Vec<Option<[f64; 2]>> = groups
                 .par_iter()
                 .map(|g| {
@@ -665,6 +741,9 @@ impl<'a> Iteration<'a> {
                 hood.index
                     .near_unsorted(Window::centred(m.x0.round(), m.y0.round(), half), &mut near);
                 for &i in &near {
+                    if hood.is_ghost(i) {
+                        continue;
+                    }
                     let s = &self.seeds[i];
                     if i == j
                         || absent(s, &items[i].fit)
@@ -688,11 +767,14 @@ impl<'a> Iteration<'a> {
                 let win = s.window;
                 let mut pull = 0.0;
                 hood.index.near_unsorted(win, near);
-                if near.iter().all(|&j| items[j].moved == 0.0 || j == i) {
+                if near
+                    .iter()
+                    .all(|&j| j == i || items.get(j).is_none_or(|it| it.moved == 0.0))
+                {
                     return 0.0;
                 }
                 hood.touching(i, win, near, |j, m, same| {
-                    if !same && items[j].moved != 0.0 {
+                    if !same && items.get(j).is_some_and(|it| it.moved != 0.0) {
                         pull += pull_of(items[j].moved, m.share_in(win));
                     }
                 });
@@ -775,6 +857,8 @@ impl<'a> Iteration<'a> {
                     if !kind.intermediate {
                         raw.extend_from_slice(&f.ws.data[..f.ws.len()]);
                     }
+                    // (the tails were rendered without the ghosts)
+                    let tails = tails.filter(|_| !hood.ghost_reaches(win, near));
                     match (tails.and_then(|t| t.for_window(i, win)), &canvas) {
                         (Some((sum, _)), _) => {
                             let ws = &mut f.ws;
@@ -899,6 +983,9 @@ fn normal_upper_quantile(p: f64) -> f64 {
 /// neighbours of a window.
 struct Neighbourhood<'a> {
     seeds: &'a [Seed],
+    /// One model per seed, then the ghosts (see [`Iteration::ghosts`]): lattice sites outside
+    /// the image whose light reaches into it, subtracted like any neighbour but never fitted
+    /// as a dot nor reported.
     models: Vec<Option<NeighbourModel>>,
     index: NeighbourIndex,
     /// Which fits may model a neighbour (fixed from the first models).
@@ -947,6 +1034,31 @@ impl<'a> Neighbourhood<'a> {
         }
     }
 
+    /// Replaces the ghosts' models by `ghosts`.
+    fn set_ghosts(&mut self, ghosts: Vec<NeighbourModel>) {
+        let had = self.models.len() > self.seeds.len();
+        self.models.truncate(self.seeds.len());
+        if had || !ghosts.is_empty() {
+            self.models.extend(ghosts.into_iter().map(Some));
+            self.reindex();
+        }
+    }
+
+    /// Whether a ghost's 5σ reach touches `win`.
+    fn ghost_reaches(&self, win: Window, near: &mut Vec<usize>) -> bool {
+        if self.models.len() == self.seeds.len() {
+            return false;
+        }
+        self.index.near_unsorted(win, near);
+        near.iter()
+            .any(|&j| self.is_ghost(j) && self.models[j].as_ref().is_some_and(|m| m.reaches(win)))
+    }
+
+    /// Whether model `j` is a ghost.
+    fn is_ghost(&self, j: usize) -> bool {
+        j >= self.seeds.len()
+    }
+
     /// Rebuilds the bucket index from the models.
     fn reindex(&mut self) {
         self.index = NeighbourIndex::new(&self.models);
@@ -968,9 +1080,72 @@ impl<'a> Neighbourhood<'a> {
             if j == i || !m.reaches(win) {
                 continue;
             }
-            f(j, m, same_seed(&self.seeds[i], &self.seeds[j]));
+            let same = !self.is_ghost(j) && same_seed(&self.seeds[i], &self.seeds[j]);
+            f(j, m, same);
         }
     }
+}
+
+/// The lattice sites for [`Iteration::ghosts`], in grid-index order: each site one step
+/// (of the eight around a seed) from a seed with a usable fit, holding no seed, whose
+/// position extrapolated from that seed and the seed on its other side (`2 p − q`, both
+/// usable) lies outside the image's pixel area; the mean of those extrapolations.
+fn ghost_sites(
+    seeds: &[Seed],
+    fits: &[DotFit],
+    width: usize,
+    height: usize,
+) -> Vec<(GridIndex, [f64; 2])> {
+    let at: HashMap<(i32, i32), usize> = seeds
+        .iter()
+        .enumerate()
+        .map(|(k, s)| ((s.index.i, s.index.j), k))
+        .collect();
+    let usable = |k: usize| {
+        let f = &fits[k];
+        (f.status.is_ok() && f.params.is_valid()).then_some([f.params.x0, f.params.y0])
+    };
+    let outside = |p: [f64; 2]| {
+        p[0] < -0.5 || p[1] < -0.5 || p[0] > width as f64 - 0.5 || p[1] > height as f64 - 0.5
+    };
+    let mut sites: BTreeMap<(i32, i32), ([f64; 2], u32)> = BTreeMap::new();
+    for (k, s) in seeds.iter().enumerate() {
+        let Some(p) = usable(k) else { continue };
+        let (i, j) = (s.index.i, s.index.j);
+        for (di, dj) in [
+            (1, 0),
+            (-1, 0),
+            (0, 1),
+            (0, -1),
+            (1, 1),
+            (1, -1),
+            (-1, 1),
+            (-1, -1),
+        ] {
+            let g = (i + di, j + dj);
+            if at.contains_key(&g) {
+                continue;
+            }
+            let Some(q) = at.get(&(i - di, j - dj)).and_then(|&o| usable(o)) else {
+                continue;
+            };
+            let e = [2.0 * p[0] - q[0], 2.0 * p[1] - q[1]];
+            if !outside(e) {
+                continue;
+            }
+            let v = sites.entry(g).or_insert(([0.0; 2], 0));
+            v.0[0] += e[0];
+            v.0[1] += e[1];
+            v.1 += 1;
+        }
+    }
+    sites
+        .into_iter()
+        .map(|((i, j), (sum, n))| {
+            let n = n as f64;
+            (GridIndex::new(i, j), [sum[0] / n, sum[1] / n])
+        })
+        .collect()
 }
 
 /// Renders, into `ws.tmp` (unit amplitude, over its 5σ box) and one call of `f(ws, amplitude)`
@@ -1411,7 +1586,7 @@ impl NeighbourModel {
         let axis = |c: f64, r: f64, lo: i64, n: usize| {
             let s = r / REACH_SIGMAS;
             let (a, b) = (lo as f64 - 0.5 - c, (lo + n as i64) as f64 - 0.5 - c);
-            (0.5 * (libm::erf(b / s) - libm::erf(a / s))).clamp(0.0, 1.0)
+            (0.5 * (erf_fast(b / s) - erf_fast(a / s))).clamp(0.0, 1.0)
         };
         axis(self.x0, self.rx, w.x, w.width) * axis(self.y0, self.ry, w.y, w.height)
     }
@@ -1423,6 +1598,23 @@ impl NeighbourModel {
             && self.y0 + self.ry >= w.y as f64 - 0.5
             && self.y0 - self.ry <= (w.y + w.height as i64) as f64 - 0.5
     }
+}
+
+/// erf(x) to 1.2e-7 absolute (Numerical Recipes' `erfcc`, Chebyshev fit of erfc): a screening
+/// share needs no more, at a third of the cost of `libm::erf`.
+fn erf_fast(x: f64) -> f64 {
+    let z = x.abs();
+    let t = 1.0 / (1.0 + 0.5 * z);
+    let p = -z * z - 1.265_512_23
+        + t * (1.000_023_68
+            + t * (0.374_091_96
+                + t * (0.096_784_18
+                    + t * (-0.186_288_06
+                        + t * (0.278_868_07
+                            + t * (-1.135_203_98
+                                + t * (1.488_515_87 + t * (-0.822_152_23 + t * 0.170_872_77))))))));
+    let erfc = t * p.exp();
+    if x >= 0.0 { 1.0 - erfc } else { erfc - 1.0 }
 }
 
 fn fit_seed(
@@ -1591,5 +1783,21 @@ impl NeighbourIndex {
                 out.extend(items.iter().map(|&i| i as usize));
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::erf_fast;
+
+    #[test]
+    fn erf_fast_is_within_its_stated_error() {
+        let mut worst = 0.0f64;
+        for k in -8000..=8000 {
+            let x = k as f64 * 1e-3;
+            worst = worst.max((erf_fast(x) - libm::erf(x)).abs());
+        }
+        assert!(worst < 1.2e-7, "largest error {worst:e}");
+        assert_eq!(erf_fast(-0.7), -erf_fast(0.7));
     }
 }

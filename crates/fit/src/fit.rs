@@ -411,6 +411,46 @@ impl Fitter {
         fit.status.is_ok().then_some(fit)
     }
 
+    /// A dot of shape `shape` held at `at` with its amplitude and background fitted on the
+    /// loaded window (a linear fit): the model of a lattice site outside the image whose light
+    /// reaches into it. `reach`: a window holding `at` (the unclipped window of the site), the
+    /// fit's bounds. `None` unless the amplitude reaches [`PRESENCE_SITE_MIN_Z`] standard
+    /// deviations (no dot printed there) and the fit converged.
+    pub(crate) fn fit_loaded_ghost(
+        &mut self,
+        at: [f64; 2],
+        reach: Window,
+        noise: &NoiseModel,
+        shape: [f64; 3],
+    ) -> Option<Gaussian2D> {
+        if self.cfg.estimator != Estimator::Lsg
+            || self.ws.n_used <= Kind::Linear.n_free()
+            || !at.iter().all(|v| v.is_finite())
+        {
+            return None;
+        }
+        let bounds = Bounds::for_window(reach.x, reach.y, reach.width, reach.height);
+        let hint = Gaussian2D {
+            x0: at[0],
+            y0: at[1],
+            sigma_x: shape[0],
+            sigma_y: shape[1],
+            rho: shape[2],
+            amplitude: 1.0,
+            background: crate::start::background(&mut self.ws),
+        };
+        let (out, z) = self.solve_held(
+            Kind::Linear,
+            at,
+            Some(&hint),
+            Some(at),
+            &bounds,
+            noise,
+            shape,
+        )?;
+        (out.status.is_ok() && z >= PRESENCE_SITE_MIN_Z).then(|| gaussian_from_theta(&out.theta))
+    }
+
     /// The amplitude of a dot of shape `shape` centred at `at`, in its standard deviations
     /// (amplitude and background fitted: a linear fit, whose z is standard normal where there
     /// is no dot); `None` where that cannot be fitted.

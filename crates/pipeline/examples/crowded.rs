@@ -2,10 +2,10 @@
 //! through the default pipeline (the code path of `bostrack run`), scored against their exact
 //! truth: per-axis coverage of |d − d_true| ≤ u_d (overall and for true AR ≥ 2), RMS error /
 //! RMS u_d, valid dots off by more than 5 u_d against chance, the valid fraction (over all dots,
-//! the issue's target; and, printed beside it, over the dots away from the image edge, which the
-//! test `tests/crowded.rs` checks), and how many of the dots off by that much the pipeline
+//! the issue's target, which the test `tests/crowded.rs` checks; and, printed beside it, over
+//! the dots away from the image edge), and how many of the dots off by that much the pipeline
 //! flagged. The scoring is in `tests/common/crowded.rs` (shared with `tests/crowded.rs`, which
-//! runs a crop of every scene but `hex_bump`, the documented limit of the engine).
+//! runs a crop of every scene but `hex_blur` and `hex_bump`, the documented limits of the engine).
 //!
 //! ```sh
 //! cargo run --release -p bostrack-pipeline --example crowded -- [--scenes a,b] [--size 512] [--seed N] [--config pipeline.toml] [--truth]

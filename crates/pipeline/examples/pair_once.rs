@@ -6,6 +6,10 @@
 //! CONFIG defaults to `testdata/bos-sample.toml`. `pair`: no stack, displacement and AR only
 //! (the reference side and one frame); `stack`: the configuration as written (with the no-flow
 //! stack and the uncertainties).
+//!
+//! With `PAIR_ONCE_NO_FRAME` set it stops after the reference side: the instructions of one frame
+//! are those of a run without it less those of a run with it (`valgrind --tool=callgrind`, one
+//! thread), a count the machine's load does not disturb.
 
 use bostrack_fit::Solver;
 use bostrack_pipeline::{Plan, Quantities, ReferenceContext, load_config, process_frame};
@@ -36,6 +40,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let plan = Plan::from_config(cfg, &config)?;
     let t = Instant::now();
     let ctx = ReferenceContext::prepare(&plan)?;
+    if std::env::var_os("PAIR_ONCE_NO_FRAME").is_some() {
+        return Ok(());
+    }
     let r = process_frame(&ctx, &plan, &plan.gradients[0])?;
     println!(
         "total {:.3} s wall, {} threads",

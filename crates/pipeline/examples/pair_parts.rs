@@ -351,6 +351,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             "fit_dots gradient     {t:7.2} ms  {:.2} us/dot",
             t * 1e3 / n
         );
+        let (_, report) =
+            bostrack_fit::fit_dots_report(&gradient, roi, &tracked.seeds, &cfg, &noise)?;
+        println!(
+            "  passes {} refits {:?} converged {} unconverged {}",
+            report.passes, report.refits, report.converged, report.unconverged
+        );
     }
     Ok(())
 }

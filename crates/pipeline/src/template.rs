@@ -211,6 +211,13 @@ pub(crate) const SECTIONS: &[SectionDoc] = &[
                  the next pass.",
             ),
             key(
+                "ghosts",
+                "With neighbours = \"subtract\": model the lattice sites just outside the image\n\
+                 whose light reaches into it (a dot of the image's median shape at the position\n\
+                 extrapolated along the lattice, amplitude and background fitted on its visible\n\
+                 part; never reported), so that the windows along the image edge are explained.",
+            ),
+            key(
                 "residual_false_alarm",
                 "False-alarm rate of the per-dot chi-square test of the window's residual against\n\
                  the noise model: a dot above the test's threshold is flagged \"residual\" (an\n\
