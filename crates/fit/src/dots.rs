@@ -497,7 +497,7 @@ impl<'a> Iteration<'a> {
                     let reach = Window::centred(at[0].round(), at[1].round(), half);
                     let win = reach.clip(w, h)?;
                     f.load_image(img, mask, win);
-                    hood.index.near(win, near);
+                    hood.index.near_unsorted(win, near);
                     for &j in near.iter() {
                         let Some(m) = hood.models[j].as_ref() else {
                             continue;
@@ -1065,7 +1065,8 @@ impl<'a> Neighbourhood<'a> {
     }
 
     /// Calls `f(j, model, same)` for every fitted dot `j ≠ i` whose 5σ reach touches `win`, in
-    /// ascending `j`; `same`: seed `j` is closer than 1.5 px to seed `i` (the same dot found
+    /// the index's bucket order (fixed by the models' positions: deterministic, not ascending;
+    /// sorting the candidates cost 3 % of `locate` on the real sample); `same`: seed `j` is closer than 1.5 px to seed `i` (the same dot found
     /// twice, never subtracted).
     fn touching(
         &self,
@@ -1074,7 +1075,7 @@ impl<'a> Neighbourhood<'a> {
         near: &mut Vec<usize>,
         mut f: impl FnMut(usize, &NeighbourModel, bool),
     ) {
-        self.index.near(win, near);
+        self.index.near_unsorted(win, near);
         for &j in near.iter() {
             let Some(m) = &self.models[j] else { continue };
             if j == i || !m.reaches(win) {
@@ -1746,14 +1747,7 @@ impl NeighbourIndex {
     }
 
     /// Writes into `out` the indices of the fitted dots whose centre is within the largest
-    /// reach of the window (ascending, so the subtraction order and hence the result are
-    /// deterministic).
-    fn near(&self, w: Window, out: &mut Vec<usize>) {
-        self.near_unsorted(w, out);
-        out.sort_unstable();
-    }
-
-    /// As [`NeighbourIndex::near`], in bucket order (deterministic, not ascending).
+    /// reach of the window, in bucket order (deterministic, not ascending).
     fn near_unsorted(&self, w: Window, out: &mut Vec<usize>) {
         out.clear();
         if self.nx == 0 {
