@@ -158,6 +158,8 @@ def main():
     ap.add_argument("--out", required=True, help="working folder (scenes, CSVs, results)")
     ap.add_argument("--real", help="real reference image (skipped when absent)")
     ap.add_argument("--mask", help="bostrack's mask for the real reference")
+    ap.add_argument("--baseline", help="a second bostrack binary (e.g. a build of main), timed "
+                    "interleaved with the first: its CPU per dot and the ratio in one more column")
     ap.add_argument("--runs", type=int, default=5, help="interleaved repetitions (median)")
     ap.add_argument("--seed", type=int, default=17)
     a = ap.parse_args()
@@ -209,15 +211,18 @@ def main():
         mm = ask({"kind": "calibrate", "image": img, "diameter": diam,
                   "separation": min(diam + 1, spacing - 2), "expected": expected})["minmass"]
         res[key] = {"label": label, "expected": expected, "minmass": mm, "diameter": diam,
-                    "separation": min(diam + 1, spacing - 2), "b": [], "t": []}
+                    "separation": min(diam + 1, spacing - 2), "b": [], "t": [], "base": []}
     for r in range(a.runs):
         for label, key, img, truth, spacing, diam, extra in images:
             e = res[key]
             tjob = {"kind": "locate", "image": img, "out": os.path.join(a.out, f"{key}.trackpy.csv"),
                     "diameter": diam, "minmass": e["minmass"], "separation": e["separation"]}
-            order = ["b", "t"] if r % 2 == 0 else ["t", "b"]
-            for who in order:
-                if who == "b":
+            order = ["b", "t"] + (["base"] if a.baseline else [])
+            for who in (order if r % 2 == 0 else order[::-1]):
+                if who == "base":
+                    e["base"].append(run_bostrack(a.baseline, img, os.path.join(a.out, f"{key}.baseline.csv"),
+                                                  extra))
+                elif who == "b":
                     e["b"].append(run_bostrack(a.bostrack, img, os.path.join(a.out, f"{key}.bostrack.csv"),
                                               extra))
                 else:
@@ -239,6 +244,8 @@ def main():
                "bostrack_cpu_ms": 1e3 * bcpu, "trackpy_cpu_ms": 1e3 * tcpu,
                "bostrack_cpu_ms_min": 1e3 * min(x["cpu_s"] for x in e["b"]),
                "trackpy_cpu_ms_min": 1e3 * min(x["cpu_s"] for x in e["t"]),
+               "baseline_us_per_dot": (1e6 * statistics.median(x["cpu_s"] for x in e["base"])
+                                       / e["expected"]) if e["base"] else None,
                "trackpy_features": e["t"][-1]["n"], "trackpy_minmass": e["minmass"],
                "trackpy_diameter": diam, "trackpy_separation": e["separation"]}
         if truth:
@@ -256,8 +263,9 @@ def main():
 
     lines = [
         "| scene | dots | bostrack CPU µs/dot | trackpy CPU µs/dot | bostrack / trackpy | "
-        "bostrack RMS error / bound (found, > 5 bounds) | trackpy RMS error / bound (found, > 5 bounds) |",
-        "|---|---|---|---|---|---|---|",
+        "bostrack RMS error / bound (found, > 5 bounds) | trackpy RMS error / bound (found, > 5 bounds) |"
+        + (" baseline bostrack CPU µs/dot | bostrack / baseline |" if a.baseline else ""),
+        "|---|---|---|---|---|---|---|" + ("---|---|" if a.baseline else ""),
     ]
     for r in rows:
         if "bostrack_found" in r:
@@ -268,7 +276,9 @@ def main():
             acc_t = (f"{fmt(r['trackpy_vs_bostrack_rms_over_bound'], '.3f')} from bostrack "
                      f"({r['trackpy_vs_bostrack_found']:.4f})")
         lines.append(f"| {r['scene']} | {r['dots']} | {r['bostrack_us_per_dot']:.2f} | "
-                     f"{r['trackpy_us_per_dot']:.2f} | **{r['ratio']:.2f}** | {acc_b} | {acc_t} |")
+                     f"{r['trackpy_us_per_dot']:.2f} | **{r['ratio']:.2f}** | {acc_b} | {acc_t} |"
+                     + (f" {r['baseline_us_per_dot']:.2f} | {r['bostrack_us_per_dot'] / r['baseline_us_per_dot']:.3f} |"
+                        if a.baseline else ""))
     load1 = open("/proc/loadavg").read().split()[:3]
     meta = {
         "date_utc": time.strftime("%Y-%m-%d %H:%M", time.gmtime(t_start)),
@@ -276,7 +286,7 @@ def main():
         "wall_s": round(time.time() - t_start, 1), "trackpy": hello["trackpy"],
         "numpy": hello["numpy"], "engine": hello["engine"],
         "trackpy_import_cpu_ms": 1e3 * hello["import_cpu_s"],
-        "python": sys.version.split()[0], "bostrack": a.bostrack,
+        "python": sys.version.split()[0], "bostrack": a.bostrack, "baseline": a.baseline,
     }
     text = "\n".join(lines)
     note = (f"\n\nmedian CPU of {a.runs} interleaved runs; trackpy {meta['trackpy']} (engine "

@@ -2,7 +2,7 @@
 # bostrack locate against trackpy.locate on the same images, one thread each: CPU per dot and
 # both accuracies against the exact truth (issue 17). Usage, from anywhere:
 #
-#   bench/trackpy/run.sh [--runs N] [--seed S]
+#   bench/trackpy/run.sh [--runs N] [--seed S] [--baseline /path/to/other/bostrack]
 #
 # Makes (once) a virtual environment with the pinned trackpy of requirements.txt under
 # target/bench-trackpy/venv, builds the release bostrack (BOSTRACK=/path/to/bostrack to use
