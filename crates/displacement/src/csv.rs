@@ -3,7 +3,7 @@
 use crate::pair::{PairDot, usable};
 use bostrack_core::DotFit;
 // a float cell by the one convention of every table: unknown is the empty field
-use bostrack_core::table::optional as num;
+use bostrack_core::table::write_number;
 
 /// Column names of the pair CSV, in order. Positions, displacements, sigmas and uncertainties
 /// in px, amplitudes in counts, ρ and AR dimensionless; `x_ref, y_ref` is the position the
@@ -46,69 +46,57 @@ pub const COLUMNS: [&str; 30] = [
 /// ([`bostrack_core::table`]).
 pub const DECIMALS: usize = bostrack_core::table::DECIMALS;
 
-fn pair(v: Option<[f64; 2]>) -> [String; 2] {
-    [num(v.map(|a| a[0])), num(v.map(|a| a[1]))]
-}
-
-/// `[sigma_x, sigma_y, rho, amplitude]` of a fit.
-fn shape(d: Option<&DotFit>) -> [String; 4] {
-    [
-        num(d.map(|d| d.params.sigma_x)),
-        num(d.map(|d| d.params.sigma_y)),
-        num(d.map(|d| d.params.rho)),
-        num(d.map(|d| d.params.amplitude)),
-    ]
-}
-
 /// The values of one pair in the order of [`COLUMNS`]: floats with [`DECIMALS`] decimals,
 /// empty strings for absent or non-finite values (never `NaN`). The fitted values of a record
 /// whose fit is not usable (status not ok, non-finite position) are left empty; its problem
 /// shows in `flags` (`fit_failed`).
 pub fn to_row(p: &PairDot) -> [String; 30] {
+    let mut cells: [String; 30] = Default::default();
+    write_row(p, &mut cells);
+    cells
+}
+
+/// [`to_row`] into `cells`, whose old contents are replaced: a table writer reuses one set of
+/// cells for every row (no allocation per cell; issue 17).
+pub fn write_row(p: &PairDot, cells: &mut [String; 30]) {
+    use std::fmt::Write as _;
     // a fit that is not usable (failed, non-finite position) shows only in the flags
     let r = p.reference.as_ref().filter(|d| usable(d));
     let g = p.gradient.as_ref().filter(|d| usable(d));
-    let [x_ref, y_ref] = pair(p.reference_position);
-    let [x_grad, y_grad] = pair(g.map(|d| [d.params.x0, d.params.y0]));
-    let [dx, dy] = pair(p.displacement);
-    let [sxr, syr, rr, ar_] = shape(r);
-    let [sxg, syg, rg, ag] = shape(g);
-    let [arx, ary] = pair(p.ar);
-    let [cxr, cyr] = pair(r.map(|d| [d.crlb_x, d.crlb_y]));
-    let [cxg, cyg] = pair(g.map(|d| [d.crlb_x, d.crlb_y]));
-    let [urx, ury] = pair(p.u_ref);
-    let [ugx, ugy] = pair(p.u_grad);
-    let [udx, udy] = pair(p.u_d);
-    [
-        p.index.i.to_string(),
-        p.index.j.to_string(),
-        x_ref,
-        y_ref,
-        x_grad,
-        y_grad,
-        dx,
-        dy,
-        sxr,
-        syr,
-        rr,
-        ar_,
-        sxg,
-        syg,
-        rg,
-        ag,
-        arx,
-        ary,
-        cxr,
-        cyr,
-        cxg,
-        cyg,
-        urx,
-        ury,
-        ugx,
-        ugy,
-        udx,
-        udy,
-        p.valid.to_string(),
-        p.flags.to_string(),
-    ]
+    let xy = |v: Option<[f64; 2]>| [v.map(|a| a[0]), v.map(|a| a[1])];
+    let shape = |d: Option<&DotFit>| {
+        [
+            d.map(|d| d.params.sigma_x),
+            d.map(|d| d.params.sigma_y),
+            d.map(|d| d.params.rho),
+            d.map(|d| d.params.amplitude),
+        ]
+    };
+    let numbers: [[Option<f64>; 2]; 13] = [
+        xy(p.reference_position),
+        xy(g.map(|d| [d.params.x0, d.params.y0])),
+        xy(p.displacement),
+        [shape(r)[0], shape(r)[1]],
+        [shape(r)[2], shape(r)[3]],
+        [shape(g)[0], shape(g)[1]],
+        [shape(g)[2], shape(g)[3]],
+        xy(p.ar),
+        xy(r.map(|d| [d.crlb_x, d.crlb_y])),
+        xy(g.map(|d| [d.crlb_x, d.crlb_y])),
+        xy(p.u_ref),
+        xy(p.u_grad),
+        xy(p.u_d),
+    ];
+    for c in cells.iter_mut() {
+        c.clear();
+    }
+    let _ = write!(cells[0], "{}", p.index.i);
+    let _ = write!(cells[1], "{}", p.index.j);
+    for (c, v) in cells[2..28].iter_mut().zip(numbers.iter().flatten()) {
+        if let Some(v) = v {
+            write_number(c, *v);
+        }
+    }
+    let _ = write!(cells[28], "{}", p.valid);
+    let _ = write!(cells[29], "{}", p.flags);
 }

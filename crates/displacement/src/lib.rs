@@ -61,7 +61,7 @@ mod csv;
 mod pair;
 
 pub use bostrack_model::ArVariant;
-pub use csv::{COLUMNS, DECIMALS, to_row};
+pub use csv::{COLUMNS, DECIMALS, to_row, write_row};
 pub use pair::{
     ArShapes, DisplacementConfig, PairDot, PairInput, Quantities, ReferencePosition,
     ReferenceSource, ReferenceStats, pair_dot, pair_dots, pixel_blurred,

@@ -3,7 +3,7 @@
 use bostrack_core::{DotFit, DotFlags, FitStatus, Gaussian2D, GridIndex};
 use bostrack_displacement::{
     ArShapes, ArVariant, COLUMNS, DisplacementConfig, PairInput, Quantities, ReferencePosition,
-    ReferenceSource, ReferenceStats, pair_dot, pair_dots, pixel_blurred, to_row,
+    ReferenceSource, ReferenceStats, pair_dot, pair_dots, pixel_blurred, to_row, write_row,
 };
 use bostrack_model::amplification_ratio;
 
@@ -258,6 +258,25 @@ fn unmatched_failed_and_flagged_pairs() {
     )
     .unwrap();
     assert!(p.valid && p.flags == DotFlags::BORDER);
+    // cells reused from a full row (a valid pair) hold exactly the next row's text: the empty
+    // fields of an unmatched pair are emptied
+    let full = to_row(&p);
+    let mut cells = full.clone();
+    let unmatched = pair_dot(
+        &PairInput {
+            reference: Some(&r),
+            gradient: None,
+            stack: None,
+            flags: DotFlags::NONE,
+        },
+        &cfg,
+    )
+    .unwrap();
+    write_row(&unmatched, &mut cells);
+    assert_eq!(cells, to_row(&unmatched));
+    assert!(cells[4].is_empty() && !full[4].is_empty());
+    write_row(&p, &mut cells);
+    assert_eq!(cells, full);
     let p = pair_dot(
         &PairInput {
             reference: Some(&r),

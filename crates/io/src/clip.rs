@@ -195,7 +195,15 @@ impl fmt::Display for ClipLevel {
 /// the module documentation for the rules).
 pub fn find_clip_level(img: &Image, max_sample_value: Option<f64>) -> ClipLevel {
     let finite = || img.data().iter().copied().filter(|v| v.is_finite());
-    let max_sample = finite().fold(None, |m: Option<f64>, v| Some(m.map_or(v, |m| m.max(v))));
+    // One pass for the largest sample and the OR of the samples (their common power of two);
+    // one more counts the clipped pixels, and the pile-up test one more (issue 17: four passes
+    // with an Option fold cost 65 instructions per pixel, 1.6 % of `locate` on the sample).
+    let (mut max, mut or) = (f64::NEG_INFINITY, 0u64);
+    for v in finite() {
+        max = max.max(v);
+        or |= v.max(0.0) as u64;
+    }
+    let max_sample = max.is_finite().then_some(max);
     let meta = &img.meta;
     let container = match meta.sample_format {
         SampleFormat::Unsigned if meta.bits_per_sample < 64 => {
@@ -220,7 +228,6 @@ pub fn find_clip_level(img: &Image, max_sample_value: Option<f64>) -> ClipLevel 
         return with(Some(cmax), ClipSource::Container);
     };
     // the samples' common power of two (left-justified data step by 2^t)
-    let or = finite().fold(0u64, |a, v| a | v.max(0.0) as u64);
     let t = or.trailing_zeros().min(63);
     let step = (1u64 << t) as f64;
     if is_pile_up(img, m, step) {

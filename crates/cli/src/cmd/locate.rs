@@ -10,6 +10,7 @@ use bostrack_io::Saturation;
 use bostrack_model::ModelKind;
 use bostrack_pipeline::CsvTable;
 use clap::Args;
+use std::fmt::Write as _;
 use std::io::Write as _;
 use std::path::PathBuf;
 
@@ -295,6 +296,9 @@ fn write_csv(
         std::fs::File::create(path).with_context(|| format!("cannot write {}", path.display()))?;
     let io = |e: std::io::Error| anyhow::anyhow!("cannot write {}: {e}", path.display());
     let mut t = CsvTable::new(std::io::BufWriter::new(file), &COLUMNS).map_err(io)?;
+    // One set of cells for every row: no allocation per cell (issue 17: writing the table was
+    // 6 % of `locate`'s instructions on the real sample).
+    let mut cells: [String; COLUMNS.len()] = Default::default();
     for (seed, f) in seeds.iter().zip(fits) {
         let p = &f.params;
         // Not fitted: the position is unknown (empty) whatever the record holds; the status and
@@ -306,26 +310,37 @@ fn write_csv(
                 v
             }
         };
-        t.row(&[
-            f.index.i.to_string(),
-            f.index.j.to_string(),
-            table::number(known(p.x0)),
-            table::number(known(p.y0)),
-            f.status.to_string(),
-            f.flags.to_string(),
-            table::number(p.sigma_x),
-            table::number(p.sigma_y),
-            table::number(p.rho),
-            table::number(p.amplitude),
-            table::number(p.background),
-            table::number(f.crlb_x),
-            table::number(f.crlb_y),
-            table::number(f.rms),
-            f.iterations.to_string(),
-            table::number(seed.predicted[0]),
-            table::number(seed.predicted[1]),
-        ])
-        .map_err(io)?;
+        let numbers = [
+            known(p.x0),
+            known(p.y0),
+            p.sigma_x,
+            p.sigma_y,
+            p.rho,
+            p.amplitude,
+            p.background,
+            f.crlb_x,
+            f.crlb_y,
+            f.rms,
+        ];
+        let [i, j, x, y, status, flags, rest @ ..] = &mut cells;
+        let [numeric @ .., iterations, x_pred, y_pred] = rest;
+        for c in [&mut *i, j, x, y, status, flags, iterations, x_pred, y_pred] {
+            c.clear();
+        }
+        let _ = write!(i, "{}", f.index.i);
+        let _ = write!(j, "{}", f.index.j);
+        table::write_number(x, numbers[0]);
+        table::write_number(y, numbers[1]);
+        status.push_str(f.status.as_str());
+        let _ = write!(flags, "{}", f.flags);
+        for (c, &v) in numeric.iter_mut().zip(&numbers[2..]) {
+            c.clear();
+            table::write_number(c, v);
+        }
+        let _ = write!(iterations, "{}", f.iterations);
+        table::write_number(x_pred, seed.predicted[0]);
+        table::write_number(y_pred, seed.predicted[1]);
+        t.row(&cells).map_err(io)?;
     }
     t.finish().map_err(io)?.flush().map_err(io)
 }

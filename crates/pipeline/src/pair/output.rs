@@ -4,7 +4,7 @@
 use super::FrameResult;
 use crate::error::PipelineError;
 use crate::table::CsvTable;
-use bostrack_displacement::{COLUMNS, to_row};
+use bostrack_displacement::{COLUMNS, write_row};
 use std::fs;
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -66,11 +66,14 @@ fn write_into(dir: &Path, result: &FrameResult) -> Result<(), PipelineError> {
     write_synced(&dir.join(SUMMARY), &json).map_err(out(dir.join(SUMMARY)))
 }
 
-/// The text of `dots.csv`: [`COLUMNS`], then one [`to_row`] per dot, by the one table writer.
+/// The text of `dots.csv`: [`COLUMNS`], then one row per dot ([`write_row`], the cells of
+/// `to_row` reused from row to row), by the one table writer.
 fn dots_csv(dots: &[bostrack_displacement::PairDot]) -> std::io::Result<Vec<u8>> {
     let mut t = CsvTable::new(Vec::with_capacity(200 * (dots.len() + 1)), &COLUMNS)?;
+    let mut cells: [String; COLUMNS.len()] = Default::default();
     for d in dots {
-        t.row(&to_row(d))?;
+        write_row(d, &mut cells);
+        t.row(&cells)?;
     }
     t.finish()
 }
