@@ -160,7 +160,10 @@ fn matrix(name: &str, dims: [usize; 2], data: &Data<'_>) -> Result<Vec<u8>, Stri
         }
         Data::Struct(fields) => {
             let width = fields.iter().map(|(n, _)| n.len()).max().unwrap_or(0) + 1;
-            element(&mut body, MI_INT32, &(width as i32).to_le_bytes())?;
+            // the field name length in the small data element format (type and byte count in
+            // one word, then the value): Octave reads it only in that form
+            body.extend(((4u32 << 16) | MI_INT32).to_le_bytes());
+            body.extend((width as i32).to_le_bytes());
             let mut names = vec![0u8; width * fields.len()];
             for (k, (n, _)) in fields.iter().enumerate() {
                 valid_name(n)?;
