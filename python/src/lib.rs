@@ -53,7 +53,9 @@ fn io_err(e: bostrack_io::IoError) -> PyErr {
 /// A 2-D numpy array of one of the image dtypes as an [`Image`] (samples copied in row-major
 /// order whatever the array's strides), with the metadata of its bit depth.
 fn array_image(obj: &Bound<'_, PyAny>, what: &str) -> PyResult<Image> {
-    fn copy<T: numpy::Element + Copy + Into<f64>>(a: PyReadonlyArray2<'_, T>) -> (usize, usize, Vec<f64>) {
+    fn copy<T: numpy::Element + Copy + Into<f64>>(
+        a: PyReadonlyArray2<'_, T>,
+    ) -> (usize, usize, Vec<f64>) {
         let v = a.as_array();
         let (h, w) = v.dim();
         (w, h, v.iter().map(|&x| x.into()).collect())
@@ -71,7 +73,10 @@ fn array_image(obj: &Bound<'_, PyAny>, what: &str) -> PyResult<Image> {
         let (w, h, d) = copy(a);
         (w, h, d, 64)
     } else {
-        let ndim = obj.getattr("ndim").ok().and_then(|n| n.extract::<usize>().ok());
+        let ndim = obj
+            .getattr("ndim")
+            .ok()
+            .and_then(|n| n.extract::<usize>().ok());
         let dtype = obj
             .getattr("dtype")
             .ok()
@@ -87,7 +92,9 @@ fn array_image(obj: &Bound<'_, PyAny>, what: &str) -> PyResult<Image> {
             )),
             _ => PyTypeError::new_err(format!(
                 "{what} must be a numpy array or the path of an image file, got {}",
-                obj.get_type().name().map_or_else(|_| "?".into(), |n| n.to_string())
+                obj.get_type()
+                    .name()
+                    .map_or_else(|_| "?".into(), |n| n.to_string())
             )),
         });
     };
@@ -97,17 +104,18 @@ fn array_image(obj: &Bound<'_, PyAny>, what: &str) -> PyResult<Image> {
 
 /// The image argument of `locate`: a path (read as `bostrack locate` reads it, the clip level
 /// from the file) or an array (the clip level from its samples); with its name for messages.
-fn input_image(
-    obj: &Bound<'_, PyAny>,
-    saturation: Saturation,
-) -> PyResult<(Image, PathBuf)> {
+fn input_image(obj: &Bound<'_, PyAny>, saturation: Saturation) -> PyResult<(Image, PathBuf)> {
     if let Ok(path) = obj.extract::<PathBuf>() {
         let (img, _) = bostrack_io::read_image_clipped(&path, saturation).map_err(io_err)?;
         return Ok((img, path));
     }
     let mut img = array_image(obj, "image")?;
     bostrack_io::apply_saturation(&mut img, saturation, None).map_err(io_err)?;
-    let name = PathBuf::from(format!("image array ({} x {} px)", img.width(), img.height()));
+    let name = PathBuf::from(format!(
+        "image array ({} x {} px)",
+        img.width(),
+        img.height()
+    ));
     Ok((img, name))
 }
 
@@ -189,7 +197,10 @@ fn locate<'py>(
         .validate()
         .map_err(|e| py_err(e, ErrKind::Value))?;
     options.fit.model = parse_model(model).map_err(PyValueError::new_err)?;
-    options.fit.validate().map_err(|e| py_err(e, ErrKind::Value))?;
+    options
+        .fit
+        .validate()
+        .map_err(|e| py_err(e, ErrKind::Value))?;
     if let Some(r) = read_noise {
         if !(r.is_finite() && r > 0.0) {
             return Err(PyValueError::new_err(format!(
@@ -221,8 +232,20 @@ fn locate<'py>(
     };
     for name in LOCATE_COLUMNS {
         match name {
-            "i" => out.set_item(name, rows.iter().map(|r| r.i).collect::<Vec<_>>().into_pyarray(py))?,
-            "j" => out.set_item(name, rows.iter().map(|r| r.j).collect::<Vec<_>>().into_pyarray(py))?,
+            "i" => out.set_item(
+                name,
+                rows.iter()
+                    .map(|r| r.i)
+                    .collect::<Vec<_>>()
+                    .into_pyarray(py),
+            )?,
+            "j" => out.set_item(
+                name,
+                rows.iter()
+                    .map(|r| r.j)
+                    .collect::<Vec<_>>()
+                    .into_pyarray(py),
+            )?,
             "status" => out.set_item(
                 name,
                 PyList::new(py, rows.iter().map(|r| r.status.to_string()))?,
@@ -233,7 +256,10 @@ fn locate<'py>(
             )?,
             "iterations" => out.set_item(
                 name,
-                rows.iter().map(|r| r.iterations).collect::<Vec<_>>().into_pyarray(py),
+                rows.iter()
+                    .map(|r| r.iterations)
+                    .collect::<Vec<_>>()
+                    .into_pyarray(py),
             )?,
             _ => {
                 let v = f64s(&|r| column_value(r, name));
@@ -478,9 +504,8 @@ fn crlb_json(path: &Path) -> PyResult<String> {
         }
         _ => py_err(e, ErrKind::Value),
     })?;
-    let named = |e: bostrack_theory::TheoryError| {
-        PyValueError::new_err(format!("{}: {e}", path.display()))
-    };
+    let named =
+        |e: bostrack_theory::TheoryError| PyValueError::new_err(format!("{}: {e}", path.display()));
     let setup = bostrack_theory::Setup::from_toml(&text).map_err(named)?;
     let p = bostrack_theory::predict(&setup).map_err(named)?;
     let v = bostrack_theory::prediction_json(&p, path).map_err(|e| py_err(e, ErrKind::Runtime))?;
@@ -489,11 +514,10 @@ fn crlb_json(path: &Path) -> PyResult<String> {
 
 /// Reads an image file as `bostrack` reads it: a 2-D float64 array of its samples.
 #[pyfunction]
-fn read_image<'py>(
-    py: Python<'py>,
-    path: PathBuf,
-) -> PyResult<Bound<'py, numpy::PyArray2<f64>>> {
-    let img = py.detach(|| bostrack_io::read_image(&path)).map_err(io_err)?;
+fn read_image<'py>(py: Python<'py>, path: PathBuf) -> PyResult<Bound<'py, numpy::PyArray2<f64>>> {
+    let img = py
+        .detach(|| bostrack_io::read_image(&path))
+        .map_err(io_err)?;
     let (w, h) = (img.width(), img.height());
     numpy::ndarray::Array2::from_shape_vec((h, w), img.into_data())
         .map(|a| a.into_pyarray(py))

@@ -11,7 +11,10 @@ use std::time::Instant;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().collect();
-    let path = std::path::PathBuf::from(args.get(1).ok_or("usage: locate_time IMAGE [RUNS] [JOBS]")?);
+    let path = std::path::PathBuf::from(
+        args.get(1)
+            .ok_or("usage: locate_time IMAGE [RUNS] [JOBS]")?,
+    );
     let runs: usize = args.get(2).map_or(Ok(5), |s| s.parse())?;
     let jobs: usize = args.get(3).map_or(Ok(0), |s| s.parse())?;
     let pool = rayon::ThreadPoolBuilder::new()

@@ -124,7 +124,11 @@ impl FigureSpec {
     /// Whether `frame_dir` holds this setup's per-frame figures: its `figures.json` lists
     /// exactly the requested files (none requested: always complete).
     pub fn frame_complete(&self, frame_dir: &Path) -> bool {
-        if !self.arrays.iter().all(|a| frame_dir.join(a.file_name()).is_file()) {
+        if !self
+            .arrays
+            .iter()
+            .all(|a| frame_dir.join(a.file_name()).is_file())
+        {
             return false;
         }
         if !self.has_frame_figures() {

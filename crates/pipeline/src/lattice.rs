@@ -125,7 +125,11 @@ impl LatticeFields {
             let int = |c: usize| -> Result<i32, String> {
                 let s = rec.get(c).unwrap_or("");
                 s.parse().map_err(|_| {
-                    format!("row {}: `{s}` in column `{}` is not an integer", k + 2, headers[c])
+                    format!(
+                        "row {}: `{s}` in column `{}` is not an integer",
+                        k + 2,
+                        headers[c]
+                    )
                 })
             };
             index.push((int(ci)?, int(cj)?));
@@ -268,11 +272,8 @@ impl LatticeFields {
         let flags = flag_bits();
         npz.add_array("flag_names", &strings(flags.iter().map(|f| f.0).collect())?)
             .map_err(err)?;
-        npz.add_array(
-            "flag_bits",
-            &Array1::from_iter(flags.iter().map(|f| f.1)),
-        )
-        .map_err(err)?;
+        npz.add_array("flag_bits", &Array1::from_iter(flags.iter().map(|f| f.1)))
+            .map_err(err)?;
         Ok(npz.finish().map_err(err)?.into_inner())
     }
 
@@ -350,7 +351,10 @@ mod tests {
             panic!()
         };
         assert_eq!(dx[0], 0.25);
-        assert!(dx[1].is_nan() && dx[5].is_nan(), "hole and empty field are NaN");
+        assert!(
+            dx[1].is_nan() && dx[5].is_nan(),
+            "hole and empty field are NaN"
+        );
         let FieldValues::Float(x) = &f.get("x_ref").unwrap().values else {
             panic!()
         };
@@ -411,7 +415,10 @@ mod tests {
         let valid: Array2<bool> = r.by_name("valid").unwrap();
         assert!(valid[[0, 0]] && !valid[[1, 2]]);
         let flags: Array2<u32> = r.by_name("flags").unwrap();
-        assert_eq!(flags[[1, 2]], (DotFlags::OUTLIER | DotFlags::SATURATED).bits());
+        assert_eq!(
+            flags[[1, 2]],
+            (DotFlags::OUTLIER | DotFlags::SATURATED).bits()
+        );
         let bits: Array1<u32> = r.by_name("flag_bits").unwrap();
         assert_eq!(bits.len(), flag_bits().len());
         let mut names = r.names().unwrap();

@@ -54,9 +54,9 @@ pub use batch::{
     Progress, Shard, ShardError, Silent, merge_campaign, run_batch,
 };
 pub use config::{
-    ArVariant, ArrayFormat, DetectSection, Figure, FigureFormat, FitSection, InputConfig, MatchConfig,
-    OutputConfig, PipelineConfig, Quantities, ReferenceFrom, ReferencePosition, RunConfig,
-    Saturation, UncertaintyConfig,
+    ArVariant, ArrayFormat, DetectSection, Figure, FigureFormat, FitSection, InputConfig,
+    MatchConfig, OutputConfig, PipelineConfig, Quantities, ReferenceFrom, ReferencePosition,
+    RunConfig, Saturation, UncertaintyConfig,
 };
 pub use error::{ConfigError, PipelineError};
 pub use files::{glob_match, list_matching, natural_cmp};

@@ -178,10 +178,14 @@ pub fn locate(
     let (noise, noise_fit) = match options.noise {
         Some(n) => (n, None),
         None => {
-            let fit = estimate_noise_detailed(image, mask).map_err(|source| PipelineError::Fit {
-                path: PathBuf::from(format!("{} (estimating its noise; give the read noise)", name.display())),
-                source,
-            })?;
+            let fit =
+                estimate_noise_detailed(image, mask).map_err(|source| PipelineError::Fit {
+                    path: PathBuf::from(format!(
+                        "{} (estimating its noise; give the read noise)",
+                        name.display()
+                    )),
+                    source,
+                })?;
             (fit.model, Some(fit))
         }
     };

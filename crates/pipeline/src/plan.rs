@@ -1,8 +1,8 @@
 //! The validated plan: the second configuration level, with every path resolved and checked.
 
 use crate::config::{
-    ArVariant, ArrayFormat, DetectSection, Figure, FigureFormat, FitSection, MatchConfig, PipelineConfig,
-    Quantities, ReferenceFrom, ReferencePosition, UncertaintyConfig,
+    ArVariant, ArrayFormat, DetectSection, Figure, FigureFormat, FitSection, MatchConfig,
+    PipelineConfig, Quantities, ReferenceFrom, ReferencePosition, UncertaintyConfig,
 };
 use crate::error::ConfigError;
 use crate::files::{PathKind, Want, list_inputs, output_dir_problem};
