@@ -3,14 +3,15 @@
 # virtual environment in target/python-venv, `pip install ./python` into it (maturin builds the
 # extension into the workspace's target/ with the release profile, so the crates it shares with
 # the workspace build are reused where their features agree), then pytest on python/tests.
-# Needs python3 (3.9 or newer) with venv and pip, and PyPI for maturin, numpy, scipy, pytest.
+# Needs python3 (3.9 or newer) with venv and pip, and PyPI for maturin, numpy, scipy, pytest,
+# pandas and xarray (the last two for the DataFrame and Dataset paths).
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 root=$PWD
 venv="$root/target/python-venv"
 start=$SECONDS
 python3 -m venv --clear "$venv"
-"$venv/bin/python" -m pip install --quiet --disable-pip-version-check numpy scipy pytest
+"$venv/bin/python" -m pip install --quiet --disable-pip-version-check numpy scipy pytest pandas xarray
 # the command-line tool the tests compare against (built already by cargo test)
 cargo build --release --quiet -p bostrack
 CARGO_TARGET_DIR="$root/target" "$venv/bin/python" -m pip install --quiet \

@@ -349,3 +349,13 @@ def test_crlb_equals_the_cli_json():
     got = bostrack.crlb(setup)
     assert got == want
     assert got["crlb_x"] > 0 and got["u_d_x"] >= got["crlb_x"]
+
+
+def test_locate_gives_a_dataframe_with_units_when_pandas_is_installed():
+    pd = pytest.importorskip("pandas")
+    df = bostrack.locate(DEMO / "reference.tif")
+    assert isinstance(df, pd.DataFrame)
+    assert list(df.columns) == list(bostrack.LOCATE_UNITS)
+    assert df.attrs["units"]["crlb_x"] == "px" and df.attrs["spacing_px"] > 0
+    cols = bostrack.locate(DEMO / "reference.tif", as_frame=False)
+    np.testing.assert_array_equal(df["x"].to_numpy(), cols["x"])
