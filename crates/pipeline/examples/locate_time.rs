@@ -1,6 +1,6 @@
 //! In-process time of `bostrack locate` on one image: reading (with the clip level), noise
 //! estimate, detection and fits, as the command does them, without the process start or the
-//! CSV. The baseline of the Python package's overhead benchmark (python/bench_locate.py).
+//! CSV. The baseline of the Python package's overhead benchmark (python/benches/locate_overhead.py).
 //!
 //! `cargo run --release -p bostrack-pipeline --example locate_time -- IMAGE [RUNS] [JOBS]`
 //! prints one line: `runs N jobs J best_s B median_s M rows R`.
