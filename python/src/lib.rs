@@ -368,7 +368,9 @@ fn run<'py>(
         let shared = shared.clone();
         std::thread::Builder::new()
             .name("bostrack-run".into())
-            .spawn(move || pool.install(|| run_batch(&plan, &options, shared.as_ref())))
+            .spawn(move || {
+                pool.install(|| run_batch(&plan, &options, shared.as_ref()).map_err(Box::new))
+            })
             .map_err(|e| py_err(e, ErrKind::Runtime))?
     };
     let mut last = (usize::MAX, usize::MAX, usize::MAX);
@@ -407,7 +409,7 @@ fn run<'py>(
     if let Some(e) = interrupt {
         return Err(e);
     }
-    let report = result.map_err(|e| match e {
+    let report = result.map_err(|e| match *e {
         BatchError::Config(_) | BatchError::Mismatch { .. } | BatchError::InputsChanged { .. } => {
             py_err(e, ErrKind::Value)
         }
@@ -442,8 +444,8 @@ fn run<'py>(
 #[pyfunction]
 fn fields<'py>(py: Python<'py>, dots_csv: PathBuf) -> PyResult<Bound<'py, pyo3::types::PyTuple>> {
     let f = py
-        .detach(|| LatticeFields::read(&dots_csv))
-        .map_err(|e| match &e {
+        .detach(|| LatticeFields::read(&dots_csv).map_err(Box::new))
+        .map_err(|e| match e.as_ref() {
             BatchError::Read { source, .. } if source.kind() == std::io::ErrorKind::NotFound => {
                 PyFileNotFoundError::new_err(e.to_string())
             }
