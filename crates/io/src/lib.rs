@@ -71,7 +71,7 @@ pub use clip::{
 pub use error::{IoError, IoErrorKind};
 pub use format::{ByteOrder, FileFormat};
 pub use info::{ImageInfo, ImageStats, image_stats};
-pub use read::{probe, read_image, read_mask, read_mask_for, read_stack};
+pub use read::{mask_of, probe, read_image, read_mask, read_mask_for, read_stack};
 pub use sample::bos_sample_dir;
 pub use write::{
     write_png_u8, write_png_u16, write_tiff_f32, write_tiff_stack_u16, write_tiff_u16,

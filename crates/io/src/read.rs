@@ -162,8 +162,9 @@ pub fn read_mask(path: &Path) -> Result<Mask, IoError> {
     mask_of(&img).map_err(|k| IoError::new(path, k))
 }
 
-/// The mask rule of [`read_mask`] applied to a decoded image.
-fn mask_of(img: &Image) -> Result<Mask, IoErrorKind> {
+/// The mask rule of [`read_mask`] applied to an image in memory (e.g. an array handed over by
+/// the Python package).
+pub fn mask_of(img: &Image) -> Result<Mask, IoErrorKind> {
     let (lo, hi, _) = img
         .stats()
         .ok_or_else(|| IoErrorKind::EmptyMask("no sample is finite".into()))?;

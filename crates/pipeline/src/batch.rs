@@ -58,7 +58,7 @@ mod shard;
 pub use shard::{Shard, ShardError};
 
 use crate::error::{ConfigError, PipelineError};
-use crate::figures::{FigureSetup, FigureSpec, draw_frame_figures};
+use crate::figures::{FigureSetup, FigureSpec, draw_frame_figures, write_frame_arrays};
 use crate::pair::{ReferenceContext, frame_is_complete, process_frame, write_frame};
 use crate::plan::{Plan, ReferenceImage};
 use inputs::{Fingerprint, FrameInputs, Freshness, freshness};
@@ -132,6 +132,18 @@ pub enum BatchError {
         second: PathBuf,
         what: String,
     },
+    /// The run was stopped ([`Progress::cancelled`]) before every frame was computed; the
+    /// frames done are complete, and a rerun computes the rest.
+    #[error(
+        "{}: interrupted after {done} of {to_do} frames; the frames done are complete, and a \
+         rerun computes the rest",
+        path.display()
+    )]
+    Interrupted {
+        path: PathBuf,
+        done: usize,
+        to_do: usize,
+    },
     /// A folder without any run record.
     #[error(
         "{}: no run record ({RUN_RECORD} or {SHARDS_DIR}/shard-K-of-N.toml): not a bostrack run folder",
@@ -191,6 +203,12 @@ pub trait Progress: Sync {
     fn phase(&self, _what: &str) {}
     /// After the last frame.
     fn finish(&self) {}
+    /// Whether the run is to stop (asked before each frame; e.g. Ctrl-C in the Python
+    /// package): frames not started then are left, and the run ends with
+    /// [`BatchError::Interrupted`] once the frames in progress are written.
+    fn cancelled(&self) -> bool {
+        false
+    }
 }
 
 /// A [`Progress`] that reports nothing.
@@ -404,6 +422,7 @@ pub fn run_batch(
     let spec = FigureSpec {
         figures: plan.output.figures.clone(),
         formats: plan.output.figure_formats.clone(),
+        arrays: plan.output.arrays.clone(),
     };
     // Each frame's inputs now against those its outputs were computed from (a file is read
     // only when its size or time differ from the recorded ones).
@@ -522,7 +541,7 @@ pub fn run_batch(
         .zip(actions.par_iter())
         .zip(fingerprints.par_iter())
         .map(|((f, action), fingerprint)| {
-            if *action == Action::Skip {
+            if *action == Action::Skip || progress.cancelled() {
                 return (FrameStatus::Skipped, None);
             }
             let t = Instant::now();
@@ -534,6 +553,7 @@ pub fn run_batch(
                     f,
                     &f.title(total),
                     setup.as_ref(),
+                    &spec,
                     progress,
                     fingerprint.as_ref().map(|frame| FrameInputs {
                         frame: frame.clone(),
@@ -541,7 +561,7 @@ pub fn run_batch(
                     }),
                 )
                 .map(|()| FrameStatus::Computed),
-                _ => draw_figures(&out, f, &f.title(total), setup.as_ref(), progress)
+                _ => draw_figures(&out, f, &f.title(total), setup.as_ref(), &spec, progress)
                     .map(|()| FrameStatus::FiguresDrawn),
             };
             let (status, error) = match result {
@@ -560,6 +580,14 @@ pub fn run_batch(
         .collect();
     progress.finish();
     drop(ctx);
+    if progress.cancelled() {
+        let worked = |o: &&(FrameStatus, Option<String>)| o.0 != FrameStatus::Skipped;
+        return Err(BatchError::Interrupted {
+            path: out,
+            done: outcomes.iter().filter(worked).count(),
+            to_do: mine.len() - n_skip,
+        });
+    }
 
     let count = |s: FrameStatus| outcomes.iter().filter(|o| o.0 == s).count();
     let failures: Vec<FrameFailure> = mine
@@ -650,6 +678,7 @@ fn compute_frame(
     f: &FrameRef,
     title: &str,
     setup: Option<&FigureSetup>,
+    spec: &FigureSpec,
     progress: &dyn Progress,
     inputs: Option<FrameInputs>,
 ) -> Result<(), String> {
@@ -663,7 +692,7 @@ fn compute_frame(
     if let Some(inputs) = inputs {
         inputs.write(&dir).map_err(|e| e.to_string())?;
     }
-    draw_figures(out, f, title, setup, progress)
+    draw_figures(out, f, title, setup, spec, progress)
 }
 
 fn draw_figures(
@@ -671,11 +700,13 @@ fn draw_figures(
     f: &FrameRef,
     title: &str,
     setup: Option<&FigureSetup>,
+    spec: &FigureSpec,
     progress: &dyn Progress,
 ) -> Result<(), String> {
-    let Some(setup) = setup else { return Ok(()) };
     let dir = out.join(&f.stem);
     fsx::remove_stale_files(&dir);
+    write_frame_arrays(&dir, spec).map_err(|e| format!("arrays: {e}"))?;
+    let Some(setup) = setup else { return Ok(()) };
     let notes = draw_frame_figures(&dir, title, setup).map_err(|e| format!("figures: {e}"))?;
     for n in notes {
         progress.note(&n);
@@ -767,7 +798,11 @@ pub fn merge_campaign(out_dir: &Path, progress: &dyn Progress) -> Result<MergeRe
     let paths = record::union_of_frames(records.iter().map(|(_, r)| r));
     let frames = frame_refs(&paths, first_path)?;
     let (figures, formats) = first.figures();
-    let spec = FigureSpec { figures, formats };
+    let spec = FigureSpec {
+        figures,
+        formats,
+        arrays: first.arrays(),
+    };
 
     // Per-frame figures that are missing.
     let missing: Vec<&FrameRef> = frames
@@ -796,7 +831,7 @@ pub fn merge_campaign(out_dir: &Path, progress: &dyn Progress) -> Result<MergeRe
         .par_iter()
         .map(|f| {
             let t = Instant::now();
-            let r = draw_figures(out_dir, f, &f.title(total), setup.as_ref(), progress);
+            let r = draw_figures(out_dir, f, &f.title(total), setup.as_ref(), &spec, progress);
             progress.frame_done(&FrameEvent {
                 frame: f.number,
                 stem: &f.stem,

@@ -258,6 +258,27 @@ impl FigureFormat {
     }
 }
 
+/// A file format of the per-frame lattice arrays (`crate::LatticeFields`: every `dots.csv`
+/// quantity as a 2-D array, rows i, columns j).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ArrayFormat {
+    /// numpy `.npz` (`<frame>/fields.npz`).
+    Npz,
+    /// MATLAB Level 5 MAT-file (`<frame>/fields.mat`).
+    Mat,
+}
+
+impl ArrayFormat {
+    /// The file name in a frame's folder.
+    pub fn file_name(self) -> &'static str {
+        match self {
+            ArrayFormat::Npz => "fields.npz",
+            ArrayFormat::Mat => "fields.mat",
+        }
+    }
+}
+
 /// What the pair pipeline computes per dot; each level includes the ones before it, and
 /// nothing beyond the level asked for is computed (no stack fits below `uncertainty`, no
 /// amplification ratio below `amplification`).
@@ -296,6 +317,8 @@ pub struct OutputConfig {
     pub figures: Vec<Figure>,
     /// File formats of every figure.
     pub figure_formats: Vec<FigureFormat>,
+    /// Lattice arrays per frame (`<frame>/fields.npz`, `<frame>/fields.mat`; default none).
+    pub arrays: Vec<ArrayFormat>,
     /// Recompute every frame and accept an output folder of another configuration (as
     /// `bostrack run --force`).
     pub overwrite: bool,
@@ -308,6 +331,7 @@ impl Default for OutputConfig {
             quantities: Quantities::Uncertainty,
             figures: Figure::ALL.to_vec(),
             figure_formats: vec![FigureFormat::Png],
+            arrays: Vec::new(),
             overwrite: false,
         }
     }

@@ -18,7 +18,7 @@
 use crate::batch::BatchError;
 use crate::batch::dots::{FrameDots, read_dots};
 use crate::batch::fsx::write_atomic;
-use crate::config::{Figure, FigureFormat};
+use crate::config::{ArrayFormat, Figure, FigureFormat};
 use bostrack_core::Mask;
 use bostrack_figures as bf;
 use serde::{Deserialize, Serialize};
@@ -27,11 +27,13 @@ use std::path::Path;
 /// Name of the per-frame record of figures.
 pub(crate) const FIGURES_RECORD: &str = "figures.json";
 
-/// Which figures, in which formats.
+/// Which figures, in which formats, and which lattice array files: the per-frame outputs
+/// drawn from a frame's `dots.csv` after it is written.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub(crate) struct FigureSpec {
     pub figures: Vec<Figure>,
     pub formats: Vec<FigureFormat>,
+    pub arrays: Vec<ArrayFormat>,
 }
 
 /// What the figures of a run need besides the data: the image size and the mask.
@@ -122,6 +124,13 @@ impl FigureSpec {
     /// Whether `frame_dir` holds this setup's per-frame figures: its `figures.json` lists
     /// exactly the requested files (none requested: always complete).
     pub fn frame_complete(&self, frame_dir: &Path) -> bool {
+        if !self
+            .arrays
+            .iter()
+            .all(|a| frame_dir.join(a.file_name()).is_file())
+        {
+            return false;
+        }
         if !self.has_frame_figures() {
             return true;
         }
@@ -195,6 +204,29 @@ enum FigureOutcome {
 
 /// Draws the requested per-frame figures of `frame_dir` from its `dots.csv`, then writes
 /// `figures.json`. Returns the notes on figures skipped (nothing to draw).
+/// Writes the lattice array files of `spec` (`fields.npz`, `fields.mat`) from the frame's
+/// `dots.csv`, each atomically.
+pub(crate) fn write_frame_arrays(frame_dir: &Path, spec: &FigureSpec) -> Result<(), BatchError> {
+    if spec.arrays.is_empty() {
+        return Ok(());
+    }
+    let dots = frame_dir.join("dots.csv");
+    let fields = crate::LatticeFields::read(&dots)?;
+    for a in &spec.arrays {
+        let path = frame_dir.join(a.file_name());
+        let bytes = match a {
+            ArrayFormat::Npz => fields.to_npz(),
+            ArrayFormat::Mat => fields.to_mat(),
+        }
+        .map_err(|message| BatchError::Corrupt {
+            path: path.clone(),
+            message,
+        })?;
+        write_atomic(&path, &bytes)?;
+    }
+    Ok(())
+}
+
 pub(crate) fn draw_frame_figures(
     frame_dir: &Path,
     title: &str,

@@ -40,7 +40,9 @@ mod error;
 mod figures;
 mod files;
 mod jobs;
+mod lattice;
 mod load;
+mod locate;
 mod pair;
 mod plan;
 mod suggest;
@@ -52,15 +54,19 @@ pub use batch::{
     Progress, Shard, ShardError, Silent, merge_campaign, run_batch,
 };
 pub use config::{
-    ArVariant, DetectSection, Figure, FigureFormat, FitSection, InputConfig, MatchConfig,
-    OutputConfig, PipelineConfig, Quantities, ReferenceFrom, ReferencePosition, RunConfig,
-    Saturation, UncertaintyConfig,
+    ArVariant, ArrayFormat, DetectSection, Figure, FigureFormat, FitSection, InputConfig,
+    MatchConfig, OutputConfig, PipelineConfig, Quantities, ReferenceFrom, ReferencePosition,
+    RunConfig, Saturation, UncertaintyConfig,
 };
 pub use error::{ConfigError, PipelineError};
 pub use files::{glob_match, list_matching, natural_cmp};
 pub use jobs::{MAX_JOBS, available_jobs, resolve_jobs};
+pub use lattice::{Field, FieldValues, LatticeFields, flag_bits, unit_of};
 pub use load::{
     MAX_CONFIG_BYTES, load_config, load_toml, parse_config, parse_toml, read_config_text,
+};
+pub use locate::{
+    LOCATE_COLUMNS, LOCATE_UNITS, LocateOptions, LocateRow, Located, locate, parse_model,
 };
 pub use pair::{
     FrameCounts, FrameMedians, FrameResult, FrameSummary, NoiseSummary, ReferenceContext,

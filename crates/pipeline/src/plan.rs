@@ -1,8 +1,8 @@
 //! The validated plan: the second configuration level, with every path resolved and checked.
 
 use crate::config::{
-    ArVariant, DetectSection, Figure, FigureFormat, FitSection, MatchConfig, PipelineConfig,
-    Quantities, ReferenceFrom, ReferencePosition, UncertaintyConfig,
+    ArVariant, ArrayFormat, DetectSection, Figure, FigureFormat, FitSection, MatchConfig,
+    PipelineConfig, Quantities, ReferenceFrom, ReferencePosition, UncertaintyConfig,
 };
 use crate::error::ConfigError;
 use crate::files::{PathKind, Want, list_inputs, output_dir_problem};
@@ -30,6 +30,8 @@ pub struct OutputPlan {
     pub figures: Vec<Figure>,
     /// File formats of every figure, without duplicates.
     pub figure_formats: Vec<FigureFormat>,
+    /// Lattice array formats, without duplicates.
+    pub arrays: Vec<ArrayFormat>,
     pub overwrite: bool,
 }
 
@@ -157,6 +159,7 @@ impl Plan {
             dir: out_dir,
             figures: cfg.output.figures.clone(),
             figure_formats: cfg.output.figure_formats.clone(),
+            arrays: cfg.output.arrays.clone(),
             overwrite: cfg.output.overwrite,
         };
 
@@ -373,6 +376,13 @@ impl Validator<'_> {
                     format!("\"{}\" is listed twice", f.extension()),
                 ));
             }
+        }
+        let arrays = &cfg.output.arrays;
+        if let Some(k) = (1..arrays.len()).find(|&k| arrays[..k].contains(&arrays[k])) {
+            return Err(self.invalid(
+                "output.arrays",
+                format!("\"{}\" is listed twice", arrays[k].file_name()),
+            ));
         }
         if formats.is_empty() && !figs.is_empty() {
             return Err(self.invalid(

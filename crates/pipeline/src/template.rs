@@ -312,6 +312,12 @@ pub(crate) const SECTIONS: &[SectionDoc] = &[
                 "File formats of the figures: \"png\" and/or \"svg\".",
             ),
             key(
+                "arrays",
+                "Lattice arrays per frame: \"npz\" (DIR/<frame>/fields.npz) and/or \"mat\"\n\
+                 (fields.mat, MATLAB): every dots.csv quantity as a 2-D array, rows i, columns j,\n\
+                 NaN where no dot, with a units record (README, \"Python, numpy and MATLAB\").",
+            ),
+            key(
                 "overwrite",
                 "Recompute every frame, even those whose outputs in `dir` are complete, and accept\n\
                  a `dir` written with another configuration (as `bostrack run --force`).\n\

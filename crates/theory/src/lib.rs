@@ -68,7 +68,7 @@ pub use optics::{
     cone_angle_geometric, diffraction_diameter, magnification, rotation_matrix,
     volumetric_sensitivity,
 };
-pub use predict::{Prediction, predict};
+pub use predict::{Prediction, predict, prediction_json};
 pub use raytrace::{DotMoments, Propagation, RayTrace, RayTraceConfig, ray_trace};
 pub use setup::{Camera, Constants, Flow, Geometry, Optics, Setup, View};
 pub use sweep::{ExposureScaling, SweepRow, ZdHold, sweep_f_number, sweep_z_d};

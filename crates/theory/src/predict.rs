@@ -22,6 +22,22 @@ const LENSING: f64 = 0.1;
 /// Smallest sigma for which the closed form holds (px, NOTES.md §3).
 const UNDERSAMPLED_SIGMA: f64 = 0.8;
 
+/// The prediction as one JSON object (`bostrack crlb --json`, Python's `bostrack.crlb`): every
+/// field of [`Prediction`] (NaN as null), `setup` (the file) and the displacement uncertainty of
+/// one pair `u_d_x`, `u_d_y` = √(crlb_ref² + crlb²) (px).
+pub fn prediction_json(
+    p: &Prediction,
+    setup: &std::path::Path,
+) -> Result<serde_json::Value, serde_json::Error> {
+    let mut v = serde_json::to_value(p)?;
+    if let Some(obj) = v.as_object_mut() {
+        obj.insert("setup".into(), setup.display().to_string().into());
+        obj.insert("u_d_x".into(), p.crlb_ref_x.hypot(p.crlb_x).into());
+        obj.insert("u_d_y".into(), p.crlb_ref_y.hypot(p.crlb_y).into());
+    }
+    Ok(v)
+}
+
 /// Everything the theory predicts for one dot of a [`Setup`]. Lengths in px unless a name says
 /// otherwise; bounds are standard deviations (px).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

@@ -98,15 +98,9 @@ pub(crate) fn run(args: CrlbArgs) -> anyhow::Result<Outcome> {
     Ok(Outcome::Done)
 }
 
-/// The prediction as one JSON object: every field of [`Prediction`] plus `setup` and the
-/// displacement uncertainty `u_d_x`, `u_d_y`.
+/// The prediction as one JSON object ([`bostrack_theory::prediction_json`]).
 fn prediction_json(p: &Prediction, path: &Path) -> anyhow::Result<String> {
-    let mut v = serde_json::to_value(p).context("serialising the prediction")?;
-    if let Some(obj) = v.as_object_mut() {
-        obj.insert("setup".into(), path.display().to_string().into());
-        obj.insert("u_d_x".into(), p.crlb_ref_x.hypot(p.crlb_x).into());
-        obj.insert("u_d_y".into(), p.crlb_ref_y.hypot(p.crlb_y).into());
-    }
+    let v = bostrack_theory::prediction_json(p, path).context("serialising the prediction")?;
     serde_json::to_string(&v).context("serialising the prediction")
 }
 

@@ -3,14 +3,13 @@
 use crate::Outcome;
 use crate::jobs::JobsArg;
 use anyhow::Context as _;
-use bostrack_core::{DotFit, DotFlags, FitStatus, NoiseModel, table};
-use bostrack_detect::{DetectConfig, detect};
-use bostrack_fit::{Estimator, FitConfig, estimate_noise_detailed, fit_dots};
+use bostrack_core::{DotFlags, FitStatus, NoiseModel};
+use bostrack_detect::DetectConfig;
+use bostrack_fit::{Estimator, FitConfig};
 use bostrack_io::Saturation;
 use bostrack_model::ModelKind;
-use bostrack_pipeline::CsvTable;
+use bostrack_pipeline::{CsvTable, LOCATE_COLUMNS, LocateOptions, Located, locate};
 use clap::Args;
-use std::fmt::Write as _;
 use std::io::Write as _;
 use std::path::PathBuf;
 
@@ -139,14 +138,7 @@ pub(crate) struct LocateArgs {
 }
 
 fn parse_model(s: &str) -> Result<ModelKind, String> {
-    match s.replace('-', "_").as_str() {
-        "elliptical" => Ok(ModelKind::Elliptical),
-        "axis_aligned" => Ok(ModelKind::AxisAligned),
-        "circular" => Ok(ModelKind::Circular),
-        _ => Err(format!(
-            "unknown model `{s}` (expected elliptical, axis-aligned or circular)"
-        )),
-    }
+    bostrack_pipeline::parse_model(s)
 }
 
 fn parse_saturation(s: &str) -> Result<Saturation, String> {
@@ -163,27 +155,6 @@ fn parse_estimator(s: &str) -> Result<Estimator, String> {
         )),
     }
 }
-
-/// The CSV header of `locate`, in column order.
-pub(crate) const COLUMNS: [&str; 17] = [
-    "i",
-    "j",
-    "x",
-    "y",
-    "status",
-    "flags",
-    "sigma_x",
-    "sigma_y",
-    "rho",
-    "amplitude",
-    "background",
-    "crlb_x",
-    "crlb_y",
-    "rms",
-    "iterations",
-    "x_pred",
-    "y_pred",
-];
 
 pub(crate) fn run(args: LocateArgs) -> anyhow::Result<Outcome> {
     let detect_cfg = DetectConfig {
@@ -210,7 +181,6 @@ pub(crate) fn run(args: LocateArgs) -> anyhow::Result<Outcome> {
     };
     // The noise model: the flags when given, else estimated from the image itself (then said
     // with its standard errors, and whether the line was resolved).
-    let mut noise_note = String::new();
     let noise = match args.read_noise {
         Some(read_noise) => {
             if !(read_noise.is_finite()
@@ -223,43 +193,38 @@ pub(crate) fn run(args: LocateArgs) -> anyhow::Result<Outcome> {
                     "the noise model needs --read-noise > 0, --gain >= 0 and a finite --offset"
                 );
             }
-            NoiseModel {
+            Some(NoiseModel {
                 read_variance: read_noise * read_noise,
                 gain: args.gain,
                 offset: args.offset,
-            }
+            })
         }
-        None => {
-            let fit = estimate_noise_detailed(&image, mask.as_ref()).with_context(|| {
-                format!(
-                    "estimating the noise of {} (give --read-noise)",
-                    args.image.display()
-                )
-            })?;
-            noise_note = format!(
-                " (from the image: read variance {:.0} ± {:.0} counts², gain {:.3} ± {:.3}{})",
-                fit.model.read_variance,
-                fit.read_variance_se,
-                fit.model.gain,
-                fit.gain_se,
-                if fit.resolved {
-                    ""
-                } else {
-                    "; line not resolved: read variance of the darkest pixels"
-                }
-            );
-            fit.model
-        }
+        None => None,
     };
     let pool = args.jobs.pool(0)?;
-    let (det, fits) = pool.install(|| -> anyhow::Result<_> {
-        let det = detect(&image, mask.as_ref(), &detect_cfg)?;
-        let fits = fit_dots(&image, mask.as_ref(), &det.seeds, &fit_cfg, &noise)
-            .with_context(|| format!("fitting the dots of {}", args.image.display()))?;
-        Ok((det, fits))
-    })?;
+    let options = LocateOptions {
+        detect: detect_cfg,
+        fit: fit_cfg,
+        noise,
+    };
+    let found = pool.install(|| locate(&image, mask.as_ref(), &options, &args.image))?;
+    let (noise, fits) = (found.noise, &found.fits);
+    let noise_note = found.noise_fit.as_ref().map_or(String::new(), |fit| {
+        format!(
+            " (from the image: read variance {:.0} ± {:.0} counts², gain {:.3} ± {:.3}{})",
+            fit.model.read_variance,
+            fit.read_variance_se,
+            fit.model.gain,
+            fit.gain_se,
+            if fit.resolved {
+                ""
+            } else {
+                "; line not resolved: read variance of the darkest pixels"
+            }
+        )
+    });
 
-    write_csv(&args.out, &det.seeds, &fits)?;
+    write_csv(&args.out, &found)?;
     let ok = fits.iter().filter(|f| f.status.is_ok()).count();
     let missing = fits
         .iter()
@@ -270,7 +235,7 @@ pub(crate) fn run(args: LocateArgs) -> anyhow::Result<Outcome> {
         args.image.display(),
         fits.len(),
         missing,
-        det.spacing,
+        found.spacing,
         clip,
         noise.read_variance.sqrt(),
         noise.gain,
@@ -283,63 +248,18 @@ pub(crate) fn run(args: LocateArgs) -> anyhow::Result<Outcome> {
 }
 
 /// Writes `locate`'s table by the one table writer ([`CsvTable`]): float cells by
-/// [`table::number`], so an unknown value (not fitted, not estimated) is the empty field.
-fn write_csv(
-    path: &std::path::Path,
-    seeds: &[bostrack_core::Seed],
-    fits: &[DotFit],
-) -> anyhow::Result<()> {
+/// `table::number`, so an unknown value (not fitted, not estimated) is the empty field.
+fn write_csv(path: &std::path::Path, found: &Located) -> anyhow::Result<()> {
     if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     }
     let file =
         std::fs::File::create(path).with_context(|| format!("cannot write {}", path.display()))?;
     let io = |e: std::io::Error| anyhow::anyhow!("cannot write {}: {e}", path.display());
-    let mut t = CsvTable::new(std::io::BufWriter::new(file), &COLUMNS).map_err(io)?;
-    // One set of cells for every row: no allocation per cell (issue 17: writing the table was
-    // 6 % of `locate`'s instructions on the real sample).
-    let mut cells: [String; COLUMNS.len()] = Default::default();
-    for (seed, f) in seeds.iter().zip(fits) {
-        let p = &f.params;
-        // Not fitted: the position is unknown (empty) whatever the record holds; the status and
-        // flags say why, and x_pred, y_pred give the lattice's prediction.
-        let known = |v: f64| {
-            if f.status == FitStatus::NotFitted {
-                f64::NAN
-            } else {
-                v
-            }
-        };
-        let numbers = [
-            known(p.x0),
-            known(p.y0),
-            p.sigma_x,
-            p.sigma_y,
-            p.rho,
-            p.amplitude,
-            p.background,
-            f.crlb_x,
-            f.crlb_y,
-            f.rms,
-        ];
-        let [i, j, x, y, status, flags, rest @ ..] = &mut cells;
-        let [numeric @ .., iterations, x_pred, y_pred] = rest;
-        for c in [&mut *i, j, x, y, status, flags, iterations, x_pred, y_pred] {
-            c.clear();
-        }
-        let _ = write!(i, "{}", f.index.i);
-        let _ = write!(j, "{}", f.index.j);
-        table::write_number(x, numbers[0]);
-        table::write_number(y, numbers[1]);
-        status.push_str(f.status.as_str());
-        let _ = write!(flags, "{}", f.flags);
-        for (c, &v) in numeric.iter_mut().zip(&numbers[2..]) {
-            c.clear();
-            table::write_number(c, v);
-        }
-        let _ = write!(iterations, "{}", f.iterations);
-        table::write_number(x_pred, seed.predicted[0]);
-        table::write_number(y_pred, seed.predicted[1]);
+    let mut t = CsvTable::new(std::io::BufWriter::new(file), &LOCATE_COLUMNS).map_err(io)?;
+    let mut cells: [String; LOCATE_COLUMNS.len()] = Default::default();
+    for (seed, f) in found.seeds.iter().zip(&found.fits) {
+        bostrack_pipeline::LocateRow::new(seed, f).write_cells(&mut cells);
         t.row(&cells).map_err(io)?;
     }
     t.finish().map_err(io)?.flush().map_err(io)

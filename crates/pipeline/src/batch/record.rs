@@ -254,6 +254,16 @@ impl RunRecord {
         (figures, formats)
     }
 
+    /// The lattice array formats of the recorded configuration (`[output] arrays`).
+    pub fn arrays(&self) -> Vec<crate::config::ArrayFormat> {
+        self.config
+            .get("output")
+            .and_then(|v| v.as_table())
+            .and_then(|t| t.get("arrays"))
+            .and_then(|v| v.clone().try_into().ok())
+            .unwrap_or_default()
+    }
+
     /// Writes the record to `path` atomically.
     pub fn write(&self, path: &Path) -> Result<(), BatchError> {
         let text = toml::to_string(self).map_err(|e| BatchError::Corrupt {
