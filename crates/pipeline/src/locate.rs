@@ -144,7 +144,25 @@ impl LocateRow {
             c.clear();
         }
         let w = table::write_number;
-        let [i, j, x, y, status, flags, sx, sy, rho, amp, bg, cx, cy, rms, it, xp, yp] = cells;
+        let [
+            i,
+            j,
+            x,
+            y,
+            status,
+            flags,
+            sx,
+            sy,
+            rho,
+            amp,
+            bg,
+            cx,
+            cy,
+            rms,
+            it,
+            xp,
+            yp,
+        ] = cells;
         let _ = write!(i, "{}", self.i);
         let _ = write!(j, "{}", self.j);
         w(x, self.x);
