@@ -26,10 +26,12 @@ const REACH_SIGMAS: f64 = 5.0;
 /// background) of its neighbours, each over the pixels of its 5σ box (rendered once per pass
 /// into an image-sized canvas, from which a window takes its values and adds its own dot back,
 /// or, when few dots are left to refit, rendered into the window), and starts from its previous
-/// fit. Pass 1 starts from the moment estimates, pass 2 refits every dot; from pass 3 on only
-/// the dots whose neighbours moved enough to move them by more than `cfg.neighbour_tolerance`
-/// of their standard deviations are refitted, until none is left or `cfg.neighbour_passes`
-/// passes were made (then dots still moving are flagged `UNCONVERGED`). Every least-squares
+/// fit. Pass 1 starts from the moment estimates, pass 2 refits every dot (the two colours of
+/// the lattice's checkerboard one after the other, red-black); from pass 3 on only the dots
+/// whose neighbours moved enough to move them by more than `cfg.neighbour_tolerance` of their
+/// standard deviations are refitted, one colour per pass, until none is left or
+/// `cfg.neighbour_passes` passes were made (then dots still moving are flagged `UNCONVERGED`).
+/// Lattice sites just outside the image are modelled as ghosts (see [`FitConfig::ghosts`]). Every least-squares
 /// record gets the χ² test of its window residual (flag `RESIDUAL`, see
 /// [`FitConfig::residual_false_alarm`]). Seeds closer than 1.5 px are taken as the same dot
 /// found twice and not subtracted from each other. The result does not depend on the number of
