@@ -215,3 +215,144 @@ fn density_of_a_gaussian_bump_campaign() {
         "rms z: density {z_rms}, displacement {disp_z}"
     );
 }
+
+/// A campaign folder with placeholder files and `pipeline.toml` = `text` after the `[input]`
+/// lines; the plan or its error.
+fn plan_of(text: &str) -> Result<Plan, bostrack_pipeline::ConfigError> {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("reference.tif"), b"").unwrap();
+    std::fs::create_dir_all(dir.path().join("gradient")).unwrap();
+    std::fs::write(dir.path().join("gradient/g.tif"), b"").unwrap();
+    let path = dir.path().join("pipeline.toml");
+    std::fs::write(&path, format!("[input]\nstack_dir = \"\"\n{text}")).unwrap();
+    Plan::load(&path)
+}
+
+/// Missing or non-physical optics, a density field behind the lens's focal point, [density]
+/// without [optics], a setup the measurement cannot use: each a clear error naming the key.
+#[test]
+fn bad_optical_setups_are_clear_errors() {
+    let good = "[optics]\npixel_pitch_um = 6.5\nfocal_length_mm = 105.0\ntarget_distance_m = 1.5\n\
+                [geometry]\nkind = \"bos\"\nz_d_m = 0.5\ndelta_z_m = 0.05\n";
+    let p = plan_of(good).unwrap();
+    let d = p.density.unwrap();
+    assert!((d.magnification - 0.105 / 1.395).abs() < 1e-12);
+    assert!((d.magnification_density - 0.105 / 0.895).abs() < 1e-12);
+    // without the sections: nothing of it
+    assert!(plan_of("").unwrap().density.is_none());
+    let cases: [(String, &str, &str); 8] = [
+        (
+            good.replace("pixel_pitch_um = 6.5\n", ""),
+            "optics.pixel_pitch_um",
+            "missing",
+        ),
+        (
+            good.replace("focal_length_mm = 105.0\n", ""),
+            "optics.magnification",
+            "missing",
+        ),
+        (good.replace("z_d_m = 0.5\n", ""), "z_d_m", "missing"),
+        (
+            good.replace("z_d_m = 0.5", "z_d_m = -0.5"),
+            "geometry.z_d_m",
+            "> 0",
+        ),
+        (
+            good.replace("target_distance_m = 1.5", "target_distance_m = -1.5"),
+            "optics.target_distance_m",
+            "> 0",
+        ),
+        // Z_D >= Z_B: the slab behind the lens
+        (
+            good.replace("z_d_m = 0.5", "z_d_m = 1.6"),
+            "geometry",
+            "between the target and the lens",
+        ),
+        (
+            "[density]\nmethod = \"poisson\"\n".into(),
+            "optics",
+            "densities need the optical setup",
+        ),
+        (
+            format!("{good}[output]\nquantities = \"displacement\"\n"),
+            "output.quantities",
+            "uncertainty",
+        ),
+    ];
+    for (text, key, words) in cases {
+        let e = plan_of(&text).unwrap_err().to_string();
+        assert!(e.contains(key) && e.contains(words), "{key}: {e}");
+        assert!(e.contains("pipeline.toml"), "{e}");
+    }
+    // a quiescent-gas mask that is not there
+    let e = plan_of(&format!(
+        "{good}[density]\nreference_mask = \"quiet.png\"\n"
+    ))
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("density.reference_mask") && e.contains("quiet.png"),
+        "{e}"
+    );
+}
+
+/// No Dirichlet node in a frame (a quiescent-gas mask over no valid dot): the frame fails with
+/// a clear message and nothing of it is written.
+#[test]
+fn a_frame_without_a_dirichlet_node_fails_cleanly() {
+    let dir = tempfile::tempdir().unwrap();
+    let camp = dir.path();
+    let sc = SceneConfig {
+        width: 96,
+        height: 96,
+        ..Default::default()
+    };
+    let flow = FlowConfig {
+        displacement: DisplacementField::Uniform { dx: 0.2, dy: 0.0 },
+        ..Default::default()
+    };
+    std::fs::create_dir_all(camp.join("gradient")).unwrap();
+    std::fs::create_dir_all(camp.join("stack")).unwrap();
+    bostrack_io::write_tiff_u16(
+        &camp.join("reference.tif"),
+        &Scene::reference(&sc).unwrap().image,
+    )
+    .unwrap();
+    bostrack_io::write_tiff_u16(
+        &camp.join("gradient/f1.tif"),
+        &Scene::gradient(&sc, &flow).unwrap().image,
+    )
+    .unwrap();
+    for (k, img) in stack(&sc, 3).unwrap().iter().enumerate() {
+        bostrack_io::write_tiff_u16(&camp.join(format!("stack/s{k}.tif")), img).unwrap();
+    }
+    // a mask that keeps only a few pixels between four dots (one every 8 px from (0, 0))
+    let between = |v: usize| (3..5).contains(&v);
+    let quiet = bostrack_core::Image::from_fn(96, 96, |x, y| {
+        if between(x) && between(y) {
+            65535.0
+        } else {
+            0.0
+        }
+    });
+    bostrack_io::write_tiff_u16(&camp.join("quiet.tif"), &quiet).unwrap();
+    std::fs::write(
+        camp.join("pipeline.toml"),
+        "[detect]\nspacing = 8.0\n[optics]\npixel_pitch_um = 6.5\nmagnification = 0.1\n\
+         [geometry]\nkind = \"bos\"\nz_d_m = 0.5\ndelta_z_m = 0.05\n\
+         [density]\nreference_mask = \"quiet.tif\"\n",
+    )
+    .unwrap();
+    let plan = Plan::load(&camp.join("pipeline.toml")).unwrap();
+    let ctx = ReferenceContext::prepare(&plan).unwrap();
+    let e = match bostrack_pipeline::process_frame(&ctx, &plan, &plan.gradients[0]) {
+        Err(e) => e,
+        Ok(r) => panic!("integrated: {:?}", r.summary.density),
+    };
+    let e = e.to_string();
+    assert!(
+        e.contains("no Dirichlet node") && e.contains("quiet.tif") && e.contains("f1.tif"),
+        "{e}"
+    );
+    assert!(!camp.join("out/f1").exists());
+}
