@@ -156,7 +156,7 @@ fn main() {
     for &n in sizes {
         report(&format!("{n}x{n} lattice"), &lattice(n));
     }
-    let dense_sizes: &[i32] = if quick { &[32] } else { &[32, 64, 90] };
+    let dense_sizes: &[i32] = if quick { &[32] } else { &[32, 64, 90, 128] };
     for &n in dense_sizes {
         let nodes = lattice(n);
         let c = cfg(Method::Wls);

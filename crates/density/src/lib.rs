@@ -84,7 +84,7 @@ use thiserror::Error;
 /// One valid lattice node: a dot with a measured density gradient.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Node {
-    /// Lattice index `[i, j]` (i: row, j: column), unique.
+    /// Lattice index `[i, j]` (docs/CONVENTIONS.md), unique.
     pub index: [i32; 2],
     /// Position in the plane of the density field (m in the pipeline).
     pub position: [f64; 2],
