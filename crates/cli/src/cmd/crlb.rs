@@ -87,7 +87,9 @@ const PIPELINE_SECTIONS: [&str; 8] = [
 fn load_setup(path: &Path) -> anyhow::Result<Setup> {
     let mut text = bostrack_pipeline::read_config_text(path)?;
     if let Ok(table) = text.parse::<toml::Table>()
-        && table.keys().any(|k| PIPELINE_SECTIONS.contains(&k.as_str()))
+        && table
+            .keys()
+            .any(|k| PIPELINE_SECTIONS.contains(&k.as_str()))
     {
         let setup: toml::Table = table
             .into_iter()
