@@ -194,6 +194,14 @@ pub(crate) fn plan(cfg: &PipelineConfig) -> Result<Option<DensityPlan>, (String,
             format!("must be finite and >= 0, got {u}"),
         ));
     }
+    if cfg.input.stack.as_os_str().is_empty() && cfg.input.stack_dir.as_os_str().is_empty() {
+        return Err((
+            "input.stack_dir".into(),
+            "densities need the per-dot uncertainties u_d, which need a no-flow stack \
+             (input.stack or input.stack_dir; or remove [optics])"
+                .into(),
+        ));
+    }
     if cfg.output.quantities != crate::config::Quantities::Uncertainty {
         return Err((
             "output.quantities".into(),
@@ -326,6 +334,14 @@ pub fn integrate_frame(
             gradient,
             u_gradient: u,
             dirichlet,
+        });
+    }
+    if nodes.is_empty() {
+        return Err(PipelineError::Density {
+            path: frame.to_path_buf(),
+            message: "no valid dot has a displacement uncertainty u_d (it needs a no-flow stack \
+                      of at least 3 images in which the dots are fitted)"
+                .into(),
         });
     }
     if quiet.is_none() {

@@ -60,14 +60,21 @@ fn config() -> PipelineConfig {
     cfg
 }
 
+/// A plan whose files are placeholders (the images are handed over in memory).
 fn plan(cfg: PipelineConfig, dir: &Path) -> Plan {
-    std::fs::write(dir.join("reference.tif"), b"").unwrap();
-    std::fs::create_dir_all(dir.join("gradient")).unwrap();
-    std::fs::write(dir.join("gradient/g.tif"), b"").unwrap();
+    plan_in(cfg, dir).unwrap()
+}
+
+fn plan_in(cfg: PipelineConfig, dir: &Path) -> Result<Plan, bostrack_pipeline::ConfigError> {
+    for d in ["gradient", "stack"] {
+        std::fs::create_dir_all(dir.join(d)).unwrap();
+    }
+    for f in ["reference.tif", "gradient/g.tif", "stack/s.tif"] {
+        std::fs::write(dir.join(f), b"").unwrap();
+    }
     let mut cfg = cfg;
     cfg.input.dir = ".".into();
-    cfg.input.stack_dir = "".into();
-    Plan::from_config(cfg, &dir.join("pipeline.toml")).unwrap()
+    Plan::from_config(cfg, &dir.join("pipeline.toml"))
 }
 
 /// Per method: squared errors, squared standardised errors, covered count, count.
@@ -220,12 +227,9 @@ fn density_of_a_gaussian_bump_campaign() {
 /// lines; the plan or its error.
 fn plan_of(text: &str) -> Result<Plan, bostrack_pipeline::ConfigError> {
     let dir = tempfile::tempdir().unwrap();
-    std::fs::write(dir.path().join("reference.tif"), b"").unwrap();
-    std::fs::create_dir_all(dir.path().join("gradient")).unwrap();
-    std::fs::write(dir.path().join("gradient/g.tif"), b"").unwrap();
     let path = dir.path().join("pipeline.toml");
-    std::fs::write(&path, format!("[input]\nstack_dir = \"\"\n{text}")).unwrap();
-    Plan::load(&path)
+    std::fs::write(&path, text).unwrap();
+    plan_in(bostrack_pipeline::load_config(&path)?, dir.path())
 }
 
 /// Missing or non-physical optics, a density field behind the lens's focal point, [density]
@@ -240,7 +244,13 @@ fn bad_optical_setups_are_clear_errors() {
     assert!((d.magnification_density - 0.105 / 0.895).abs() < 1e-12);
     // without the sections: nothing of it
     assert!(plan_of("").unwrap().density.is_none());
-    let cases: [(String, &str, &str); 8] = [
+    let cases: [(String, &str, &str); 9] = [
+        // u_d needs a no-flow stack
+        (
+            format!("[input]\nstack_dir = \"\"\n{good}"),
+            "input.stack_dir",
+            "no-flow stack",
+        ),
         (
             good.replace("pixel_pitch_um = 6.5\n", ""),
             "optics.pixel_pitch_um",
