@@ -1,13 +1,14 @@
 //! Benchmark of the density integration with the full per-node uncertainty (issue 15):
 //!
 //! ```text
-//! cargo run --release -p bostrack-density --example density_bench [-- [--quick] [DOTS_CSV]]
+//! cargo run --release -p bostrack-density --example density_bench [-- [--quick] [--no-dense] [DOTS_CSV]]
 //! ```
 //!
 //! 1. a 128 × 128 lattice (16,384 nodes; rotated, with holes, uncertainties varying by 4×):
 //!    WLS and Poisson, solve + exact uncertainty, best of 3 wall times;
 //! 2. the dense-inverse reference (the published code's way) against the sparse path on the
-//!    largest lattice it is run on here (`--quick`: 32 × 32 only), and the ratio;
+//!    lattices up to 128 × 128 (`--quick`: 32 × 32 only; `--no-dense`: none; 128 × 128 takes
+//!    minutes and 6 GB), and the ratio;
 //! 3. with `DOTS_CSV` (a frame's `dots.csv` from `bostrack run` with the optics sections: the
 //!    real sample's lattice), the same on that lattice (its valid dots, the outer ring as the
 //!    Dirichlet nodes).
@@ -156,7 +157,13 @@ fn main() {
     for &n in sizes {
         report(&format!("{n}x{n} lattice"), &lattice(n));
     }
-    let dense_sizes: &[i32] = if quick { &[32] } else { &[32, 64, 90, 128] };
+    let dense_sizes: &[i32] = if args.iter().any(|a| a == "--no-dense") {
+        &[]
+    } else if quick {
+        &[32]
+    } else {
+        &[32, 64, 90, 128]
+    };
     for &n in dense_sizes {
         let nodes = lattice(n);
         let c = cfg(Method::Wls);
