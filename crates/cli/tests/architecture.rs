@@ -41,7 +41,14 @@ fn stage_crates_never_depend_on_each_other() {
         .iter()
         .map(|s| s.to_string())
         .collect();
-    for stage in ["detect", "fit", "match", "displacement", "uncertainty"] {
+    for stage in [
+        "detect",
+        "fit",
+        "match",
+        "displacement",
+        "uncertainty",
+        "density",
+    ] {
         let deps = internal_deps(stage);
         let extra: Vec<_> = deps.difference(&allowed).collect();
         assert!(

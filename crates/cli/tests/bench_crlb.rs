@@ -454,3 +454,28 @@ fn new_commands_have_help() {
         }
     }
 }
+
+/// One file describes an experiment for both commands (issue #15): the example setup with the
+/// pipeline's sections added is still a setup for `crlb` (same prediction), and a
+/// `pipeline.toml` for `run` (whose plan holds the setup's optics).
+#[test]
+fn crlb_reads_the_optical_setup_of_a_pipeline_toml() {
+    let dir = tempfile::tempdir().unwrap();
+    let setup = std::fs::read_to_string(example_setup()).unwrap();
+    let both = format!(
+        "[input]\ndir = \".\"\nstack_dir = \"\"\n[output]\ndir = \"out\"\n[density]\n\
+         method = \"poisson\"\n{setup}"
+    );
+    std::fs::write(dir.path().join("setup.toml"), &setup).unwrap();
+    std::fs::write(dir.path().join("pipeline.toml"), &both).unwrap();
+    let a = bostrack(&["crlb", "setup.toml", "--json"], dir.path());
+    let b = bostrack(&["crlb", "pipeline.toml", "--json"], dir.path());
+    assert_eq!(code(&b), 0, "{}", stderr(&b));
+    // the same prediction; only the file named differs
+    assert_eq!(
+        stdout(&a).replace("setup.toml", "F"),
+        stdout(&b).replace("pipeline.toml", "F")
+    );
+    let cfg = bostrack_pipeline::parse_config(&both, &dir.path().join("pipeline.toml")).unwrap();
+    assert_eq!(cfg.optics.unwrap().focal_length_mm, 105.0);
+}

@@ -23,6 +23,24 @@ pub struct PipelineConfig {
     pub uncertainty: UncertaintyConfig,
     pub output: OutputConfig,
     pub run: RunConfig,
+    /// `[optics]`, `[geometry]`, `[constants]`: the optical setup with the keys and meaning of
+    /// `bostrack crlb`'s setup file (`bostrack_theory`; `[flow]`, `[view]`, `[camera]` of that
+    /// file are accepted and not used). With `[optics]` a run also writes the density gradient
+    /// per dot and the density field (`[density]`, crate::density); without, nothing of it runs.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub optics: Option<bostrack_theory::Optics>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub geometry: Option<bostrack_theory::Geometry>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub constants: Option<bostrack_theory::Constants>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub flow: Option<bostrack_theory::Flow>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub view: Option<bostrack_theory::View>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub camera: Option<bostrack_theory::Camera>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub density: Option<crate::density::DensitySection>,
 }
 
 impl PipelineConfig {
@@ -212,17 +230,21 @@ pub enum Figure {
     /// Campaign figure: median |d| and median |u_d| against the frame number
     /// (`DIR/campaign.*`).
     Campaign,
+    /// Per frame, only with `[optics]`: maps of the density ρ (`density.*`) and of its 1σ
+    /// uncertainty u_ρ (`density-uncertainty.*`), kg/m³.
+    Density,
 }
 
 impl Figure {
     /// Every figure, in the order of the documentation.
-    pub const ALL: [Figure; 6] = [
+    pub const ALL: [Figure; 7] = [
         Figure::Detections,
         Figure::Displacement,
         Figure::Uncertainty,
         Figure::Amplification,
         Figure::Histograms,
         Figure::Campaign,
+        Figure::Density,
     ];
 
     /// The name used in `pipeline.toml`.
@@ -234,6 +256,7 @@ impl Figure {
             Figure::Amplification => "amplification",
             Figure::Histograms => "histograms",
             Figure::Campaign => "campaign",
+            Figure::Density => "density",
         }
     }
 }

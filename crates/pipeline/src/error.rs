@@ -172,6 +172,10 @@ pub enum PipelineError {
     #[error("{}: {message}", path.display())]
     NoDots { path: PathBuf, message: String },
 
+    /// The density field of a frame could not be integrated (no Dirichlet node, ...).
+    #[error("{}: density: {message}", path.display())]
+    Density { path: PathBuf, message: String },
+
     /// A failure of the reference side (noise model, detection, fits) or of a frame (detection,
     /// fits) while a mask limits the
     /// usable pixels: the message names the mask too, since it may be the cause.

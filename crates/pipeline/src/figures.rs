@@ -56,6 +56,8 @@ enum FrameFigure {
     Uncertainty,
     UncertaintyHistogram,
     ArHistogram,
+    Density,
+    DensityUncertainty,
 }
 
 impl FrameFigure {
@@ -66,6 +68,8 @@ impl FrameFigure {
             FrameFigure::Uncertainty => "uncertainty",
             FrameFigure::UncertaintyHistogram => "uncertainty-histogram",
             FrameFigure::ArHistogram => "ar-histogram",
+            FrameFigure::Density => "density",
+            FrameFigure::DensityUncertainty => "density-uncertainty",
         }
     }
 }
@@ -98,6 +102,10 @@ impl FigureSpec {
                 Figure::Histograms => {
                     out.push(FrameFigure::UncertaintyHistogram);
                     out.push(FrameFigure::ArHistogram);
+                }
+                Figure::Density => {
+                    out.push(FrameFigure::Density);
+                    out.push(FrameFigure::DensityUncertainty);
                 }
                 Figure::Campaign | Figure::Detections => {}
             }
@@ -237,7 +245,13 @@ pub(crate) fn draw_frame_figures(
         return Ok(Vec::new());
     }
     let _ = std::fs::remove_file(frame_dir.join(FIGURES_RECORD));
-    let dots = read_dots(&frame_dir.join("dots.csv"))?;
+    let mut dots = read_dots(&frame_dir.join("dots.csv"))?;
+    if kinds
+        .iter()
+        .any(|k| matches!(k, FrameFigure::Density | FrameFigure::DensityUncertainty))
+    {
+        crate::batch::dots::read_density(&frame_dir.join("density.csv"), &mut dots)?;
+    }
     let mut record = FiguresRecord {
         requested: setup.spec.requested(),
         ..FiguresRecord::default()
@@ -330,6 +344,32 @@ fn frame_figure(
             bf::uncertainty_histogram(&u_ref, &u_grad, title)
         }
         FrameFigure::ArHistogram => bf::ar_histogram(&kept(&d.ar_x, &d.ar_y, larger), title),
+        FrameFigure::Density | FrameFigure::DensityUncertainty => {
+            let (values, name) = if kind == FrameFigure::Density {
+                (&d.rho, "Density ρ")
+            } else {
+                (&d.u_rho, "Density uncertainty u_ρ (1σ)")
+            };
+            if !values.iter().any(|v| v.is_finite()) {
+                return Err(no_data("density map", "no density (no [optics] section?)"));
+            }
+            let points: Vec<bf::MapPoint> = (0..n)
+                .map(|k| {
+                    bf::MapPoint::scalar(
+                        d.x_ref[k],
+                        d.y_ref[k],
+                        values[k],
+                        values[k].is_finite(),
+                        in_mask[k],
+                    )
+                })
+                .collect();
+            let q = bf::Quantity {
+                name,
+                unit: "kg/m³",
+            };
+            bf::scalar_map(&points, &frame, &q, &options)
+        }
     }
 }
 

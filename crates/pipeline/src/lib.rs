@@ -36,6 +36,7 @@
 
 mod batch;
 mod config;
+mod density;
 mod error;
 mod figures;
 mod files;
@@ -57,6 +58,10 @@ pub use config::{
     ArVariant, ArrayFormat, DetectSection, Figure, FigureFormat, FitSection, InputConfig,
     MatchConfig, OutputConfig, PipelineConfig, Quantities, ReferenceFrom, ReferencePosition,
     RunConfig, Saturation, UncertaintyConfig,
+};
+pub use density::{
+    DENSITY_COLUMNS, DensityPlan, DensitySection, DensitySummary, FrameDensity, PHYSICAL_COLUMNS,
+    PhysicalDot, integrate_frame,
 };
 pub use error::{ConfigError, PipelineError};
 pub use files::{glob_match, list_matching, natural_cmp};

@@ -9,12 +9,14 @@ use std::path::Path;
 
 /// Reads and parses a configuration file (first level: the file as written; no path is checked).
 pub fn load_config(path: &Path) -> Result<PipelineConfig, ConfigError> {
-    load_toml(path)
+    parse_config(&read_config_text(path)?, path)
 }
 
 /// Parses configuration text; `path` is only used to name the file in errors.
 pub fn parse_config(text: &str, path: &Path) -> Result<PipelineConfig, ConfigError> {
-    parse_toml(text, path)
+    let cfg = parse_toml(text, path)?;
+    crate::density::check_required_keys(text, path)?;
+    Ok(cfg)
 }
 
 /// Reads any TOML file into `T` with the errors of [`load_config`] (file, line, unknown key with

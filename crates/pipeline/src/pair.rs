@@ -201,7 +201,10 @@ pub struct FrameSummary {
     /// The frame's clip level and how it was found (`[input] saturation`); `None` for an image
     /// handed over in memory ([`process_image`]), whose `meta.saturation` is used as it is.
     pub saturation: Option<bostrack_io::ClipLevel>,
-    /// Frame stage wall times (s): decode, detect, fit, match, pair.
+    /// The density field (only with `[optics]`; absent from `summary.json` otherwise).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub density: Option<crate::density::DensitySummary>,
+    /// Frame stage wall times (s): decode, detect, fit, match, pair (and density).
     pub times: StageTimes,
 }
 
@@ -212,5 +215,9 @@ pub struct FrameResult {
     pub stem: String,
     /// One per reference dot, reference order.
     pub dots: Vec<bostrack_displacement::PairDot>,
+    /// With `[optics]`: per dot (same order) the position and density gradient in SI units.
+    pub physical: Option<Vec<crate::density::PhysicalDot>>,
+    /// With `[optics]`: the density field on the lattice.
+    pub density: Option<crate::density::FrameDensity>,
     pub summary: FrameSummary,
 }

@@ -59,6 +59,8 @@ pub struct Plan {
     pub invalid_if: DotFlags,
     pub uncertainty: UncertaintyConfig,
     pub output: OutputPlan,
+    /// The optical setup and density settings (`[optics]` ...); `None`: no densities.
+    pub density: Option<crate::density::DensityPlan>,
     /// Worker threads (`run.jobs`, 0 resolved to the available CPUs).
     pub jobs: usize,
     /// Things that do not stop a run but are probably not meant (a pattern that also matches
@@ -151,13 +153,24 @@ impl Plan {
 
         v.warn_overlaps(&reference, mask.as_deref(), &stack, &gradients, &cfg);
 
+        let mut density = crate::density::plan(&cfg).map_err(|(key, m)| v.invalid(&key, m))?;
+        if let Some(d) = density.as_mut()
+            && let Some(m) = d.reference_mask.as_mut()
+        {
+            *m = input_dir.join(&*m);
+            v.require_file("density.reference_mask", m)?;
+        }
+
         let out_dir = base.join(&cfg.output.dir);
         if let Some(problem) = output_dir_problem(&out_dir) {
             return Err(v.bad_path("output.dir", &out_dir, problem));
         }
         let output = OutputPlan {
             dir: out_dir,
-            figures: cfg.output.figures.clone(),
+            // the density maps only with an optical setup
+            figures: (cfg.output.figures.iter().copied())
+                .filter(|f| density.is_some() || *f != Figure::Density)
+                .collect(),
             figure_formats: cfg.output.figure_formats.clone(),
             arrays: cfg.output.arrays.clone(),
             overwrite: cfg.output.overwrite,
@@ -175,6 +188,7 @@ impl Plan {
             invalid_if,
             uncertainty: cfg.uncertainty.clone(),
             output,
+            density,
             jobs: resolve_jobs(cfg.run.jobs),
             config: cfg,
             warnings: v.warnings,

@@ -305,7 +305,8 @@ pub(crate) const SECTIONS: &[SectionDoc] = &[
                  \"uncertainty\" (map of |u_d|), \"amplification\" (map of max(AR_x, AR_y)),\n\
                  \"histograms\" (|u_ref| and |u_grad|, max(AR_x, AR_y)). Per campaign, into DIR/:\n\
                  \"campaign\" (median |d| and median |u_d| against the frame number),\n\
-                 \"detections\" (the reference dots).",
+                 \"detections\" (the reference dots). Only with [optics], per frame: \"density\"\n\
+                 (maps of the density rho and of its uncertainty u_rho).",
             ),
             key(
                 "figure_formats",
@@ -336,6 +337,56 @@ pub(crate) const SECTIONS: &[SectionDoc] = &[
     },
 ];
 
+/// The optional sections (absent by default): name, comment, and the example shown commented
+/// out when the section is absent.
+const OPTIONAL: &[(&str, &str, &str)] = &[
+    (
+        "optics",
+        "Optional: the optical setup, with the keys and meaning of `bostrack crlb`'s setup file
+         (testdata/crlb-setup.toml; keys only the prediction needs are accepted and not used).
+         With it, dots.csv gains x_m, y_m, grad_rho_x/y and u_grad_rho_x/y (SI units) and each
+         frame a density.csv (the density field and its 1 sigma uncertainty, kg/m^3):
+         docs/theory.md, \"From displacements to density\". Required: pixel_pitch_um, and
+         magnification or focal_length_mm with target_distance_m (the dot target).",
+        "pixel_pitch_um = 6.5
+focal_length_mm = 105.0
+target_distance_m = 1.5",
+    ),
+    (
+        "geometry",
+        "With [optics]: the density field, a slab delta_z_m thick whose middle lies z_d_m in
+         front of the dot target (both required).",
+        "kind = \"bos\"
+z_d_m = 0.5
+delta_z_m = 0.05",
+    ),
+    (
+        "constants",
+        "With [optics]: Gladstone-Dale constant (m^3/kg) and ambient refractive index [air].",
+        "gladstone_dale_m3_kg = 0.000225
+n0 = 1.000278",
+    ),
+    (
+        "density",
+        "With [optics]: the density field on the dot lattice. method: \"wls\" (weighted by the
+         per-dot uncertainties) or \"poisson\"; the density of the quiescent gas and its 1 sigma
+         uncertainty hold on the Dirichlet nodes: the outer ring of the valid dots, or the valid
+         dots inside reference_mask (a mask image of the quiescent gas, relative to
+         [input] dir); Neumann elsewhere, holes included.",
+        "method = \"wls\"
+reference_density_kg_m3 = 1.204
+         reference_density_uncertainty_kg_m3 = 0.0
+reference_mask = \"\"",
+    ),
+    (
+        "flow",
+        "Accepted (from a `bostrack crlb` setup file) and not used by run.",
+        "",
+    ),
+    ("view", "Accepted and not used by run.", ""),
+    ("camera", "Accepted and not used by run.", ""),
+];
+
 /// The annotated configuration file for `cfg`: every key with its value and a comment.
 ///
 /// `template(&PipelineConfig::default())` is the file `bostrack init` writes; parsing the result
@@ -353,6 +404,28 @@ pub fn template(cfg: &PipelineConfig) -> Result<String, ConfigError> {
         seen_sections.push(section.name);
         let table = value.get(section.name).and_then(toml::Value::as_table);
         write_section(&mut out, section.name, section.doc, section.keys, table);
+    }
+    for &(name, doc, example) in OPTIONAL {
+        seen_sections.push(name);
+        match value.get(name).and_then(toml::Value::as_table) {
+            Some(table) => {
+                out.push('\n');
+                comment(&mut out, doc);
+                let _ = writeln!(out, "[{name}]");
+                for (k, v) in table {
+                    let _ = writeln!(out, "{k} = {v}");
+                }
+            }
+            None if !example.is_empty() => {
+                out.push('\n');
+                comment(&mut out, doc);
+                let _ = writeln!(out, "# [{name}]");
+                for line in example.lines() {
+                    let _ = writeln!(out, "# {}", line.trim());
+                }
+            }
+            None => {}
+        }
     }
     for (name, v) in &value {
         if !seen_sections.contains(&name.as_str()) {
@@ -379,7 +452,7 @@ fn write_section(
         match (table.get(k.key), k.example) {
             (Some(v), _) => {
                 comment(out, k.doc);
-                let _ = writeln!(out, "{} = {}", k.key, v);
+                key_value(out, k.key, v);
             }
             (None, Some(example)) => {
                 comment(out, k.doc);
@@ -398,6 +471,23 @@ fn write_section(
     }
     if written == 0 {
         comment(out, "(no keys yet)");
+    }
+}
+
+/// `key = value`; an array too long for one line of 100 characters gets one item per line.
+fn key_value(out: &mut String, key: &str, v: &toml::Value) {
+    let line = format!("{key} = {v}");
+    match v.as_array() {
+        Some(items) if line.len() > 100 => {
+            let _ = writeln!(out, "{key} = [");
+            for item in items {
+                let _ = writeln!(out, "    {item},");
+            }
+            out.push_str("]\n");
+        }
+        _ => {
+            let _ = writeln!(out, "{line}");
+        }
     }
 }
 
@@ -466,7 +556,9 @@ mod tests {
             let ok = line.is_empty()
                 || line.starts_with('#')
                 || (line.starts_with('[') && line.ends_with(']'))
-                || line.contains(" = ");
+                || line.contains(" = ")
+                || (line.starts_with("    ") && line.ends_with(','))
+                || line == "]";
             assert!(ok, "odd line: {line:?}");
             assert!(line.len() <= 100, "line too long: {line:?}");
         }

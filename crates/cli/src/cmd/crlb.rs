@@ -69,9 +69,34 @@ pub(crate) struct CrlbArgs {
     z_d: Vec<f64>,
 }
 
-/// Reads and validates a setup file; errors name the file and the offending key.
+/// The sections of a `pipeline.toml` that are not the setup's: a `pipeline.toml` with the
+/// optical setup (`[optics]`, `[geometry]`, `[constants]`, issue 15) is also a setup file.
+const PIPELINE_SECTIONS: [&str; 8] = [
+    "input",
+    "detect",
+    "fit",
+    "match",
+    "uncertainty",
+    "output",
+    "run",
+    "density",
+];
+
+/// Reads and validates a setup file (or a `pipeline.toml`, whose pipeline sections are left
+/// out); errors name the file and the offending key.
 fn load_setup(path: &Path) -> anyhow::Result<Setup> {
-    let text = bostrack_pipeline::read_config_text(path)?;
+    let mut text = bostrack_pipeline::read_config_text(path)?;
+    if let Ok(table) = text.parse::<toml::Table>()
+        && table
+            .keys()
+            .any(|k| PIPELINE_SECTIONS.contains(&k.as_str()))
+    {
+        let setup: toml::Table = table
+            .into_iter()
+            .filter(|(k, _)| !PIPELINE_SECTIONS.contains(&k.as_str()))
+            .collect();
+        text = toml::to_string(&setup)?;
+    }
     Setup::from_toml(&text).with_context(|| format!("{}", path.display()))
 }
 

@@ -25,6 +25,9 @@ pub(crate) struct FrameDots {
     pub u_dx: Vec<f64>,
     pub u_dy: Vec<f64>,
     pub valid: Vec<bool>,
+    /// From `density.csv` (same rows), when read: ρ and u_ρ (kg/m³).
+    pub rho: Vec<f64>,
+    pub u_rho: Vec<f64>,
 }
 
 impl FrameDots {
@@ -117,6 +120,48 @@ fn parse_dots(bytes: &[u8]) -> Result<FrameDots, String> {
         });
     }
     Ok(d)
+}
+
+/// Reads the `rho` and `u_rho` columns of `path` (a `density.csv`, the rows of `dots.csv`)
+/// into `d`.
+pub(crate) fn read_density(path: &Path, d: &mut FrameDots) -> Result<(), BatchError> {
+    let bytes = super::fsx::read(path)?;
+    let corrupt = |message: String| BatchError::Corrupt {
+        path: path.to_path_buf(),
+        message,
+    };
+    let mut rdr = csv::ReaderBuilder::new()
+        .has_headers(true)
+        .from_reader(&bytes[..]);
+    let headers = rdr.headers().map_err(|e| corrupt(e.to_string()))?.clone();
+    let col = |name: &str| {
+        headers
+            .iter()
+            .position(|h| h == name)
+            .ok_or_else(|| corrupt(format!("no column `{name}`")))
+    };
+    let (cr, cu) = (col("rho")?, col("u_rho")?);
+    let (mut rho, mut u_rho) = (Vec::new(), Vec::new());
+    for rec in rdr.records() {
+        let rec = rec.map_err(|e| corrupt(e.to_string()))?;
+        let num = |c: usize| {
+            rec.get(c)
+                .and_then(|s| s.parse::<f64>().ok())
+                .unwrap_or(f64::NAN)
+        };
+        rho.push(num(cr));
+        u_rho.push(num(cu));
+    }
+    if rho.len() != d.len() {
+        return Err(corrupt(format!(
+            "{} rows, but dots.csv has {}",
+            rho.len(),
+            d.len()
+        )));
+    }
+    d.rho = rho;
+    d.u_rho = u_rho;
+    Ok(())
 }
 
 #[cfg(test)]

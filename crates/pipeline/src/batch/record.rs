@@ -245,9 +245,13 @@ impl RunRecord {
     pub fn figures(&self) -> (Vec<Figure>, Vec<FigureFormat>) {
         let out = self.config.get("output").and_then(|v| v.as_table());
         let get = |key: &str| out.and_then(|t| t.get(key)).cloned();
+        let optics = self.config.contains_key("optics");
         let figures = get("figures")
             .and_then(|v| v.try_into::<Vec<Figure>>().ok())
-            .unwrap_or_default();
+            .unwrap_or_default()
+            .into_iter()
+            .filter(|f| optics || *f != Figure::Density) // as Plan::from_config
+            .collect();
         let formats = get("figure_formats")
             .and_then(|v| v.try_into::<Vec<FigureFormat>>().ok())
             .unwrap_or_else(|| vec![FigureFormat::Png]);
@@ -354,7 +358,10 @@ mod tests {
         assert_eq!(back, r);
         assert_eq!(back.differs_from(&r), None);
         let (figures, formats) = back.figures();
-        assert_eq!(figures, PipelineConfig::default().output.figures);
+        // the density maps only with [optics]
+        let mut expected = PipelineConfig::default().output.figures;
+        expected.retain(|f| *f != Figure::Density);
+        assert_eq!(figures, expected);
         assert_eq!(formats, [FigureFormat::Png]);
 
         // More frames, other jobs or figures: the results still apply.

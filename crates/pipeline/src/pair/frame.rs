@@ -327,6 +327,31 @@ pub fn process_image(
     );
     times.push("pair", sw.lap());
 
+    // with [optics]: the density gradient per dot and the density field
+    let (physical, density) = match &plan.density {
+        None => (None, None),
+        Some(dp) => {
+            if dp.reference_mask.is_some() && ctx.density_mask.is_none() {
+                return Err(PipelineError::Density {
+                    path,
+                    message: "[density] reference_mask is set but was not read (a context \
+                              prepared from images in memory has no files)"
+                        .into(),
+                });
+            }
+            let physical = dp.physical(&dots, ctx.size);
+            let field = crate::density::integrate_frame(
+                dp,
+                &dots,
+                &physical,
+                ctx.density_mask.as_ref(),
+                &path,
+            )?;
+            times.push("density", sw.lap());
+            (Some(physical), Some(field))
+        }
+    };
+
     let usable_pair = |p: &&bostrack_match::Pair| both(p);
     let counts = FrameCounts {
         reference_sites: n,
@@ -384,11 +409,14 @@ pub fn process_image(
         stack: ctx.stack.clone(),
         stack_note: ctx.stack_note.clone(),
         saturation: None,
+        density: density.as_ref().map(|d| d.summary.clone()),
         times,
     };
     Ok(FrameResult {
         stem,
         dots,
+        physical,
+        density,
         summary,
     })
 }

@@ -2,14 +2,17 @@
 //! atomically.
 
 use super::FrameResult;
+use crate::density::{DENSITY_COLUMNS, PHYSICAL_COLUMNS};
 use crate::error::PipelineError;
 use crate::table::CsvTable;
+use bostrack_core::table::optional;
 use bostrack_displacement::{COLUMNS, write_row};
 use std::fs;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
 const DOTS: &str = "dots.csv";
+const DENSITY: &str = "density.csv";
 const SUMMARY: &str = "summary.json";
 
 /// Writes `out_dir/<stem>/dots.csv` (columns [`bostrack_displacement::COLUMNS`], one row per
@@ -55,8 +58,11 @@ pub fn write_frame(out_dir: &Path, result: &FrameResult) -> Result<(), PipelineE
 fn write_into(dir: &Path, result: &FrameResult) -> Result<(), PipelineError> {
     let out = |path: PathBuf| move |source| PipelineError::Output { path, source };
     fs::create_dir(dir).map_err(out(dir.to_path_buf()))?;
-    let csv = dots_csv(&result.dots).map_err(out(dir.join(DOTS)))?;
+    let csv = dots_csv(result).map_err(out(dir.join(DOTS)))?;
     write_synced(&dir.join(DOTS), &csv).map_err(out(dir.join(DOTS)))?;
+    if let Some(csv) = density_csv(result).map_err(out(dir.join(DENSITY)))? {
+        write_synced(&dir.join(DENSITY), &csv).map_err(out(dir.join(DENSITY)))?;
+    }
     let mut json =
         serde_json::to_vec_pretty(&result.summary).map_err(|e| PipelineError::Output {
             path: dir.join(SUMMARY),
@@ -66,16 +72,62 @@ fn write_into(dir: &Path, result: &FrameResult) -> Result<(), PipelineError> {
     write_synced(&dir.join(SUMMARY), &json).map_err(out(dir.join(SUMMARY)))
 }
 
-/// The text of `dots.csv`: [`COLUMNS`], then one row per dot ([`write_row`], the cells of
-/// `to_row` reused from row to row), by the one table writer.
-fn dots_csv(dots: &[bostrack_displacement::PairDot]) -> std::io::Result<Vec<u8>> {
-    let mut t = CsvTable::new(Vec::with_capacity(200 * (dots.len() + 1)), &COLUMNS)?;
+/// The text of `dots.csv`: [`COLUMNS`], then one row per dot ([`write_row`], the cells reused
+/// from row to row), by the one table writer; with `[optics]` the columns
+/// [`PHYSICAL_COLUMNS`] after them.
+fn dots_csv(result: &FrameResult) -> std::io::Result<Vec<u8>> {
+    let dots = &result.dots;
+    let mut columns: Vec<&str> = COLUMNS.to_vec();
+    if result.physical.is_some() {
+        columns.extend(PHYSICAL_COLUMNS);
+    }
+    let mut t = CsvTable::new(Vec::with_capacity(250 * (dots.len() + 1)), &columns)?;
     let mut cells: [String; COLUMNS.len()] = Default::default();
-    for d in dots {
+    let mut row: Vec<String> = Vec::with_capacity(columns.len());
+    for (k, d) in dots.iter().enumerate() {
         write_row(d, &mut cells);
-        t.row(&cells)?;
+        let Some(p) = result.physical.as_ref().map(|v| v[k]) else {
+            t.row(&cells)?;
+            continue;
+        };
+        let pair = |v: Option<[f64; 2]>| [optional(v.map(|a| a[0])), optional(v.map(|a| a[1]))];
+        row.clear();
+        row.extend(cells.iter().cloned());
+        row.extend(pair(p.position_m));
+        row.extend(pair(p.gradient));
+        row.extend(pair(p.u_gradient));
+        t.row(&row)?;
     }
     t.finish()
+}
+
+/// The text of `density.csv` ([`DENSITY_COLUMNS`], one row per dot of `dots.csv`), or `None`
+/// without `[optics]`. `valid` is true where ρ is known; `status` is `solved`, `reference` (a
+/// Dirichlet node), `no_reference` (an island without one) or `hole` (not a valid dot).
+fn density_csv(result: &FrameResult) -> std::io::Result<Option<Vec<u8>>> {
+    let (Some(field), Some(physical)) = (&result.density, &result.physical) else {
+        return Ok(None);
+    };
+    let mut t = CsvTable::new(
+        Vec::with_capacity(80 * (result.dots.len() + 1)),
+        &DENSITY_COLUMNS,
+    )?;
+    for ((d, p), (rho, u, status)) in result.dots.iter().zip(physical).zip(&field.nodes) {
+        let [x, y] = p
+            .position_m
+            .map_or([None, None], |v| [Some(v[0]), Some(v[1])]);
+        t.row(&[
+            d.index.i.to_string(),
+            d.index.j.to_string(),
+            optional(x),
+            optional(y),
+            optional(*rho),
+            optional(*u),
+            rho.is_some().to_string(),
+            status.map_or("hole", |s| s.name()).to_string(),
+        ])?;
+    }
+    t.finish().map(Some)
 }
 
 fn write_synced(path: &Path, bytes: &[u8]) -> std::io::Result<()> {

@@ -83,6 +83,8 @@ pub struct ReferenceContext {
     /// The clip levels of the files read ([`ReferenceContext::prepare`]); `None` for images
     /// handed over in memory, whose `meta.saturation` is used as it is.
     pub(crate) clip: Option<ClipSummary>,
+    /// `[density] reference_mask` (the quiescent gas), read by [`ReferenceContext::prepare`].
+    pub(crate) density_mask: Option<Mask>,
 }
 
 /// The clip levels of the reference side, for the run record (`saturation`).
@@ -220,6 +222,12 @@ impl ReferenceContext {
         times.push("decode", sw.lap());
         let mut ctx = Self::build(plan, reference, source, mask, stack, times)?;
         ctx.clip = Some(ClipSummary::new(saturation, reference_clip, &stack_clips));
+        ctx.density_mask = plan
+            .density
+            .as_ref()
+            .and_then(|d| d.reference_mask.as_ref())
+            .map(|p| bostrack_io::read_mask_for(p, w, h))
+            .transpose()?;
         Ok(ctx)
     }
 
@@ -374,6 +382,7 @@ impl ReferenceContext {
             ar_shapes: ar_shapes_for(&plan.fit),
             times,
             clip: None,
+            density_mask: None,
         };
         ctx.stack_note = if quantities < Quantities::Uncertainty {
             Some(format!(
