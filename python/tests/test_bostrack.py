@@ -9,6 +9,7 @@ import csv
 import json
 import math
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -78,7 +79,9 @@ def demo_config(tmp_path, arrays=True):
     if arrays:
         text = text.replace("arrays = []", 'arrays = ["npz", "mat"]', 1)
         assert 'arrays = ["npz", "mat"]' in text
-    text = text.replace("figures = [", "figures = [] #", 1)
+    # (the list may span several lines)
+    text, n = re.subn(r"^figures = \[.*?\]", "figures = []", text, count=1, flags=re.S | re.M)
+    assert n == 1
     p = tmp_path / "pipeline.toml"
     p.write_text(text)
     return p
