@@ -414,6 +414,12 @@ struct PassKind {
     warm: bool,
 }
 
+/// The seed's colour on the lattice's checkerboard (`(i + j)` even) for the red-black passes:
+/// a dot's four nearest neighbours have the other colour.
+fn is_red(s: &Seed) -> bool {
+    (s.index.i + s.index.j).rem_euclid(2) == 0
+}
+
 /// Fewer dots than this fraction of all refitted in a pass: their neighbours are rendered into
 /// each window instead of the whole image into a canvas.
 const CANVAS_FRACTION: f64 = 0.25;
@@ -549,11 +555,7 @@ impl<'a> Iteration<'a> {
             intermediate: false,
             warm: false,
         };
-        let colour: Vec<bool> = self
-            .seeds
-            .iter()
-            .map(|s| (s.index.i + s.index.j).rem_euclid(2) == 0)
-            .collect();
+        let colour: Vec<bool> = self.seeds.iter().map(is_red).collect();
         let other: Vec<bool> = colour.iter().map(|c| !c).collect();
         let red = self.pass_with(
             fits,
@@ -566,16 +568,7 @@ impl<'a> Iteration<'a> {
             None,
         );
         let mut after = fits.to_vec();
-        let mut reindex = false;
-        for (j, r) in red.iter().enumerate() {
-            if let Some(r) = r {
-                after[j] = r.fit;
-                reindex |= !hood.set(j, &r.fit, self.cfg.sampling);
-            }
-        }
-        if reindex {
-            hood.reindex();
-        }
+        hood.apply(&red, &mut after, self.cfg.sampling);
         let black = self.pass_with(
             &after,
             Some(&other),
@@ -650,11 +643,10 @@ impl<'a> Iteration<'a> {
                 // neighbours enter its refit already refitted (a Gauss-Seidel sweep in two
                 // parallel halves: 26 % fewer refits than Jacobi on the real gradient frame);
                 // the other colour where this one has nothing left to do
-                let colour = |s: &Seed| (s.index.i + s.index.j).rem_euclid(2) as u32 == passes % 2;
                 let mine: Vec<bool> = select
                     .iter()
                     .zip(self.seeds)
-                    .map(|(&x, s)| x && colour(s))
+                    .map(|(&x, s)| x && is_red(s) == passes.is_multiple_of(2))
                     .collect();
                 let n_mine = mine.iter().filter(|&&s| s).count();
                 if n_mine > 0 {
@@ -698,16 +690,7 @@ impl<'a> Iteration<'a> {
                 Some(&items),
             );
             let mut refitted = 0;
-            let mut reindex = false;
-            for (j, n) in next.iter().enumerate() {
-                if let Some(n) = n {
-                    fits[j] = n.fit;
-                    reindex |= !hood.set(j, &n.fit, self.cfg.sampling);
-                }
-            }
-            if reindex {
-                hood.reindex();
-            }
+            hood.apply(&next, &mut fits, self.cfg.sampling);
             for (o, &sel) in owed.iter_mut().zip(&select) {
                 if sel {
                     *o = 0.0;
@@ -1104,6 +1087,21 @@ impl<'a> Neighbourhood<'a> {
         });
         self.models[j] = Some(new);
         in_place
+    }
+
+    /// [`Neighbourhood::set`] for every record a pass refitted (`None`: kept), each new fit
+    /// also written into `fits`.
+    fn apply(&mut self, refitted: &[Option<Item>], fits: &mut [DotFit], sampling: FitSampling) {
+        let mut reindex = false;
+        for (j, r) in refitted.iter().enumerate() {
+            if let Some(r) = r {
+                fits[j] = r.fit;
+                reindex |= !self.set(j, &r.fit, sampling);
+            }
+        }
+        if reindex {
+            self.reindex();
+        }
     }
 
     /// [`Neighbourhood::set`] for every record of a pass (`None`: kept).
