@@ -204,6 +204,22 @@ pub fn refit_dots_report(
     }
     check_mask(img, mask)?;
     if cfg.neighbours == Neighbours::Subtract && cfg.estimator == Estimator::Lsg {
+        // a site the detector found no dot at in this image is looked for, as in `fit_dots`,
+        // not fitted from its prior (nor subtracted from its neighbours as one)
+        let prior: Vec<DotFit> = prior
+            .iter()
+            .zip(seeds)
+            .map(|(p, s)| {
+                if s.flags.contains(DotFlags::MISSING) {
+                    let mut p = *p;
+                    p.status = FitStatus::NotFitted;
+                    p
+                } else {
+                    *p
+                }
+            })
+            .collect();
+        let prior = &prior[..];
         let mut canvas_buf = Vec::new();
         let mut it = Iteration::new(img, mask, seeds, cfg, noise);
         it.fixed_shape = median_shape(prior);
@@ -213,7 +229,8 @@ pub fn refit_dots_report(
             prior,
             PassKind {
                 intermediate: false,
-                warm: true,
+                // (the prior is a fit of another image: its weights are checked at the solution)
+                warm: false,
             },
             tails,
             &hood,

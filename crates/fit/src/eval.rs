@@ -32,10 +32,10 @@
 //! quadratic in the column, so `E(i+1) = E(i)·r(i)` with `r(i+1) = r(i)·e^{-a}`; the row-to-row
 //! step multiplies every column by `e^{-bX_i}` (a vector product, no serial dependence).
 
+use crate::simd;
 use bostrack_core::{Gaussian2D, NoiseModel};
 use bostrack_model::Sampling;
 use std::sync::OnceLock;
-use wide::f64x2;
 
 /// Index of x0 in θ.
 pub(crate) const IX: usize = 0;
@@ -291,20 +291,20 @@ pub(crate) fn exp_grid(
     }
     // y-only factor exp(-c Y²/2)
     let ec = (-c).exp();
-    let mut gy = (-0.5 * c * y_first * y_first).exp();
-    let mut s = (-0.5 * c * (2.0 * y_first + 1.0)).exp();
-    for (j, row) in out.chunks_exact_mut(w).enumerate() {
-        for (o, vv) in row.iter_mut().zip(v.iter()) {
-            *o = gy * vv;
-        }
-        if j + 1 < h {
-            for (vv, qq) in v.iter_mut().zip(q.iter()) {
-                *vv *= qq;
-            }
-            gy *= s;
-            s *= ec;
-        }
-    }
+    let gy = (-0.5 * c * y_first * y_first).exp();
+    let s = (-0.5 * c * (2.0 * y_first + 1.0)).exp();
+    simd::exp_rows(
+        simd::arch(),
+        simd::ExpRows {
+            out,
+            v,
+            q,
+            w,
+            gy,
+            s,
+            ec,
+        },
+    );
 }
 
 /// Gauss-Legendre nodes and weights on [-1/2, 1/2] (weights sum to 1), n = 1..=12, computed
@@ -397,6 +397,8 @@ pub(crate) struct Workspace {
     pub gl_n: usize,
     /// Partial sums over the quadrature nodes of one node row.
     pub acc: [Vec<f64>; 3],
+    /// Column accumulators of the point-sampled pass ([`simd::acc_len`]).
+    pub cols: Vec<f64>,
 }
 
 impl Workspace {
@@ -429,6 +431,7 @@ impl Workspace {
         for buf in self.acc.iter_mut() {
             buf.resize(n, 0.0);
         }
+        self.cols.resize(simd::acc_len(w), 0.0);
     }
 
     pub fn len(&self) -> usize {
@@ -483,7 +486,8 @@ pub(crate) fn evaluate(
     }
 }
 
-/// Point-sampled pass with the moment accumulation.
+/// Point-sampled pass with the moment accumulation ([`crate::simd::point_moments`]: per
+/// column over the rows, then folded with the columns' X powers).
 fn eval_point_moments(ws: &mut Workspace, theta: &Theta, s: &Shape, noise: &NoiseModel) -> Pass {
     let (w, h) = (ws.w, ws.h);
     let x_first = ws.wx as f64 - theta[IX];
@@ -491,12 +495,6 @@ fn eval_point_moments(ws: &mut Workspace, theta: &Theta, s: &Shape, noise: &Nois
     exp_grid(
         s.a, s.b, s.c, x_first, y_first, w, h, &mut ws.e, &mut ws.v, &mut ws.q,
     );
-    for (i, xp) in ws.xp.iter_mut().enumerate() {
-        let x = x_first + i as f64;
-        let x2 = x * x;
-        *xp = [1.0, x, x2, x2 * x, x2 * x2];
-    }
-    let (amp, bg) = (theta[IA], theta[IB]);
     let variable = !noise.is_constant();
     // constant noise: accumulate with the 0/1 keep and apply 1/variance at the end
     let scale = if variable {
@@ -504,73 +502,32 @@ fn eval_point_moments(ws: &mut Workspace, theta: &Theta, s: &Shape, noise: &Nois
     } else {
         1.0 / noise.variance(f64::NEG_INFINITY)
     };
-    let mut m2 = [[0.0f64; 5]; 5];
-    let mut m1 = [[0.0f64; 3]; 3];
-    let mut r1 = [[0.0f64; 3]; 3];
-    let (mut m0, mut r0, mut cost, mut ssr) = (0.0, 0.0, 0.0, 0.0);
-    for j in 0..h {
-        let row = j * w..(j + 1) * w;
-        let e = &ws.e[row.clone()];
-        let d = &ws.data[row.clone()];
-        let kp = &ws.keep[row.clone()];
-        let wt = if variable { &ws.w_cur[row] } else { kp };
-        // the sixteen sums as seven two-lane vectors and one scalar (as sixteen scalars they
-        // spilled to the stack); every lane adds its terms in the order one scalar sum would,
-        // with the same products, so the results are those of the scalar loop bit for bit
-        let zero = f64x2::ZERO;
-        let (mut s2_12, mut s2_34, mut s1_12, mut t1_12) = (zero, zero, zero, zero);
-        let (mut s2_s1, mut t1_t0, mut w0_cc) = (zero, zero, zero);
-        let mut sq = 0.0;
-        for ((((&ei, &di), &ki), &wi), xp) in e.iter().zip(d).zip(kp).zip(wt).zip(&ws.xp[..w]) {
-            let r = di - (bg + amp * ei);
-            let wr = wi * r;
-            let we = wi * ei;
-            let (vwe, vwr) = (f64x2::splat(we), f64x2::splat(wr));
-            let e1 = f64x2::new([ei, 1.0]);
-            let we2_we = vwe * e1;
-            let wre_wr = vwr * e1;
-            let vwe2 = f64x2::splat(we2_we.to_array()[0]);
-            let vwre = f64x2::splat(wre_wr.to_array()[0]);
-            let x12 = f64x2::new([xp[1], xp[2]]);
-            let x34 = f64x2::new([xp[3], xp[4]]);
-            s2_12 += vwe2 * x12;
-            s2_34 += vwe2 * x34;
-            s1_12 += vwe * x12;
-            t1_12 += vwre * x12;
-            s2_s1 += we2_we;
-            t1_t0 += wre_wr;
-            w0_cc += f64x2::new([wi, wr]) * f64x2::new([1.0, r]);
-            sq += ki * r * r;
-        }
-        let [s2_0, s1_0] = s2_s1.to_array();
-        let [t1_0, t0] = t1_t0.to_array();
-        let [w0, cc] = w0_cc.to_array();
-        let [a1, a2] = s2_12.to_array();
-        let [a3, a4] = s2_34.to_array();
-        let [b1, b2] = s1_12.to_array();
-        let [c1, c2] = t1_12.to_array();
-        let s2 = [s2_0, a1, a2, a3, a4];
-        let s1 = [s1_0, b1, b2];
-        let t1 = [t1_0, c1, c2];
-        let y = y_first + j as f64;
-        let y2 = y * y;
-        let yp = [1.0, y, y2, y2 * y, y2 * y2];
-        for m in 0..5 {
-            for n in 0..5 - m {
-                m2[m][n] += s2[m] * yp[n];
-            }
-        }
-        for m in 0..3 {
-            for n in 0..3 - m {
-                m1[m][n] += s1[m] * yp[n];
-                r1[m][n] += t1[m] * yp[n];
-            }
-        }
-        r0 += t0;
-        m0 += w0;
-        cost += cc;
-        ssr += sq;
-    }
+    let n = w * h;
+    let inp = simd::MomentsIn {
+        e: &ws.e[..n],
+        d: &ws.data[..n],
+        keep: &ws.keep[..n],
+        wt: if variable {
+            &ws.w_cur[..n]
+        } else {
+            &ws.keep[..n]
+        },
+        w,
+        h,
+        amp: theta[IA],
+        bg: theta[IB],
+        x_first,
+        y_first,
+    };
+    let simd::Moments {
+        mut m2,
+        mut m1,
+        mut r1,
+        mut m0,
+        mut r0,
+        mut cost,
+        ssr,
+    } = simd::point_moments(simd::arch(), &inp, &mut ws.cols);
     if !variable {
         cost *= scale;
         m0 *= scale;

@@ -63,6 +63,7 @@ mod fit;
 mod joint;
 mod lmcrate;
 mod noise;
+mod simd;
 mod solver;
 mod start;
 pub mod study;

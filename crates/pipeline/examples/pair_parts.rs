@@ -146,6 +146,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         );
     }
     if !(want("refit")
+        || want("stack")
         || want("fitgrad")
         || want("start")
         || want("passes")
@@ -173,6 +174,80 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         println!(
             "refit gradient        {t:7.2} ms  {:.2} us/dot",
             t * 1e3 / n
+        );
+        let (refit, report) = bostrack_fit::refit_dots_report(
+            &gradient,
+            roi,
+            &tracked.seeds,
+            &cfg,
+            &noise,
+            &prior,
+            None,
+        )?;
+        println!(
+            "  passes {} refits {:?} converged {} unconverged {}",
+            report.passes, report.refits, report.converged, report.unconverged
+        );
+        let direct = fit_dots(&gradient, roi, &tracked.seeds, &cfg, &noise)?;
+        let deep = fit_dots(
+            &gradient,
+            roi,
+            &tracked.seeds,
+            &FitConfig {
+                tolerance: 0.005,
+                neighbour_tolerance: 0.01,
+                ..cfg.clone()
+            },
+            &noise,
+        )?;
+        for flow in [false, true] {
+            stats("refit vs fit_dots (gradient)", &refit, &direct, flow);
+            stats("refit vs deep (gradient)", &refit, &deep, flow);
+            stats("fit_dots vs deep (gradient)", &direct, &deep, flow);
+        }
+    }
+    if want("stack") {
+        // one no-flow image fitted as the pipeline fits the stack: from the reference fits
+        // moved by the median tracked shift, then the neighbour iteration
+        let img = read_image(&dir.join("ref-stack/im_0001.tif"))?;
+        let tr = bostrack_detect::track(&img, roi, &det, &dcfg)?;
+        let mut dx: Vec<f64> = det
+            .seeds
+            .iter()
+            .zip(&tr.seeds)
+            .map(|(r, g)| g.centre[0] - r.centre[0])
+            .collect();
+        let mut dy: Vec<f64> = det
+            .seeds
+            .iter()
+            .zip(&tr.seeds)
+            .map(|(r, g)| g.centre[1] - r.centre[1])
+            .collect();
+        let shift = [
+            bostrack_core::median(&mut dx),
+            bostrack_core::median(&mut dy),
+        ];
+        let prior: Vec<_> = ref_fits
+            .iter()
+            .map(|f| {
+                let mut p = *f;
+                p.params.x0 += shift[0];
+                p.params.y0 += shift[1];
+                p
+            })
+            .collect();
+        let (t, _) = best(runs, || {
+            refit_dots(&img, roi, &tr.seeds, &cfg, &noise, &prior, None)
+        });
+        println!(
+            "refit stack image     {t:7.2} ms  {:.2} us/dot",
+            t * 1e3 / n
+        );
+        let (_, report) =
+            bostrack_fit::refit_dots_report(&img, roi, &tr.seeds, &cfg, &noise, &prior, None)?;
+        println!(
+            "  passes {} refits {:?} converged {} unconverged {}",
+            report.passes, report.refits, report.converged, report.unconverged
         );
     }
     if want("passes") || want("sequence") {

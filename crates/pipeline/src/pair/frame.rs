@@ -117,6 +117,24 @@ pub(crate) fn moved(fits: &[DotFit], shift: [f64; 2]) -> Vec<DotFit> {
         .collect()
 }
 
+/// `fits` (one per reference seed) with every centre moved by its own tracked displacement,
+/// the tracked seed's centre less the reference seed's.
+fn moved_each(
+    fits: &[DotFit],
+    reference: &[bostrack_core::Seed],
+    tracked: &[bostrack_core::Seed],
+) -> Vec<DotFit> {
+    fits.iter()
+        .zip(reference.iter().zip(tracked))
+        .map(|(f, (r, t))| {
+            let mut p = *f;
+            p.params.x0 += t.centre[0] - r.centre[0];
+            p.params.y0 += t.centre[1] - r.centre[1];
+            p
+        })
+        .collect()
+}
+
 /// Fits the tracked seeds in `img` and matches the fits to the reference fits; `init` is the
 /// tracked dots' [`median_shift`]; `no_flow` for the images of the no-flow stack (one pass from
 /// the reference fits, see below).
@@ -133,27 +151,42 @@ pub(crate) fn fit_match_timed(
 ) -> Result<Matched, PipelineError> {
     let mut sw = Stopwatch::start();
     let mask = ctx.mask.as_ref();
-    let fits = if let Some(nf) = no_flow {
+    let prior = if let Some(nf) = no_flow {
         // a no-flow image is the reference moved by the camera's common shift: a first pass
         // from the reference fits moved by the tracked dots' median displacement (neighbours
         // subtracted from those; their tails as rendered once for the stack while this image's
         // shift is within TAILS_MAX_SHIFT of theirs), instead of moment estimates and two
         // passes; then the neighbour iteration to convergence on this image's own fits
         let [sx, sy] = init.map(|v| v.unwrap_or(0.0));
-        let prior = moved(&ctx.fits, [sx, sy]);
         let small =
             (sx - nf.at[0]).abs().max((sy - nf.at[1]).abs()) <= bostrack_fit::TAILS_MAX_SHIFT;
-        bostrack_fit::refit_dots(
+        Some((moved(&ctx.fits, [sx, sy]), small.then_some(nf.tails)))
+    } else if plan.fit.neighbours == bostrack_fit::Neighbours::Subtract
+        && plan.fit.estimator == bostrack_fit::Estimator::Lsg
+        && tracked.seeds.len() == ctx.fits.len()
+    {
+        // a gradient frame: the same joint solution from the reference fits, each moved by its
+        // own tracked displacement (neighbours subtracted from those), instead of moment
+        // estimates and two full passes; the neighbour iteration then refits the dots whose
+        // neighbourhood changed (in the flow region) until it converges
+        Some((
+            moved_each(&ctx.fits, &ctx.detection.seeds, &tracked.seeds),
+            None,
+        ))
+    } else {
+        None
+    };
+    let fits = match prior {
+        Some((prior, tails)) => bostrack_fit::refit_dots(
             img,
             mask,
             &tracked.seeds,
             &plan.fit,
             &ctx.noise,
             &prior,
-            small.then_some(nf.tails),
-        )
-    } else {
-        bostrack_fit::fit_dots(img, mask, &tracked.seeds, &plan.fit, &ctx.noise)
+            tails,
+        ),
+        None => bostrack_fit::fit_dots(img, mask, &tracked.seeds, &plan.fit, &ctx.noise),
     }
     .map_err(|e| {
         with_mask(
