@@ -321,6 +321,15 @@ impl Validator<'_> {
                 ),
             ));
         }
+        if cfg.run.frames_in_flight > MAX_JOBS {
+            return Err(self.invalid(
+                "run.frames_in_flight",
+                format!(
+                    "must be 0 (automatic) to {MAX_JOBS}, got {}",
+                    cfg.run.frames_in_flight
+                ),
+            ));
+        }
         if cfg.uncertainty.ar_variant == ArVariant::Bounds
             && !cfg.fit.bound
             && cfg.output.quantities >= Quantities::Amplification
@@ -582,6 +591,11 @@ mod tests {
                 "[run]\njobs = 5000\n",
                 "run.jobs",
                 "0 (every available CPU) to 1024",
+            ),
+            (
+                "[run]\nframes_in_flight = 5000\n",
+                "run.frames_in_flight",
+                "0 (automatic) to 1024",
             ),
             (
                 "[detect]\nspacing = 0.001\n",
