@@ -312,23 +312,20 @@ impl Validator<'_> {
         cfg.fit
             .validate()
             .map_err(|e| self.invalid("fit", e.to_string()))?;
-        if cfg.run.jobs > MAX_JOBS {
-            return Err(self.invalid(
-                "run.jobs",
-                format!(
-                    "must be 0 (every available CPU) to {MAX_JOBS}, got {}",
-                    cfg.run.jobs
-                ),
-            ));
-        }
-        if cfg.run.frames_in_flight > MAX_JOBS {
-            return Err(self.invalid(
+        for (key, value, zero) in [
+            ("run.jobs", cfg.run.jobs, "every available CPU"),
+            (
                 "run.frames_in_flight",
-                format!(
-                    "must be 0 (automatic) to {MAX_JOBS}, got {}",
-                    cfg.run.frames_in_flight
-                ),
-            ));
+                cfg.run.frames_in_flight,
+                "automatic",
+            ),
+        ] {
+            if value > MAX_JOBS {
+                return Err(self.invalid(
+                    key,
+                    format!("must be 0 ({zero}) to {MAX_JOBS}, got {value}"),
+                ));
+            }
         }
         if cfg.uncertainty.ar_variant == ArVariant::Bounds
             && !cfg.fit.bound
