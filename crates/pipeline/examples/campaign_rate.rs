@@ -57,9 +57,11 @@ fn thread_cpu() -> f64 {
 }
 
 fn write_campaign(dir: &Path, size: usize, frames: usize) -> Res<PathBuf> {
-    let mut scene = SceneConfig::default();
-    scene.width = size;
-    scene.height = size;
+    let mut scene = SceneConfig {
+        width: size,
+        height: size,
+        ..SceneConfig::default()
+    };
     scene.lattice.spacing = 8.0;
     scene.dots.sigma_x = 1.25;
     scene.dots.sigma_y = 1.25;

@@ -26,8 +26,8 @@ pub fn resolve_jobs(requested: usize) -> usize {
 /// a third of the threads, rounded up, and at least 2. Each frame's stages run in parallel on
 /// the whole pool, so fewer frames than threads still keep the cores busy, while the memory
 /// of the frames in flight (image, fit canvas and records: ~56 MB per 1-MP frame) stays
-/// bounded: 16 jobs on 1-MP frames hold 6 frames, 0.42 GB in all (issue 17); 16 frames
-/// would be 1 GB.
+/// bounded: 16 jobs on 1-MP frames hold 6 frames, 0.42-0.46 GB in all (issue 17); 16
+/// frames would be 1 GB.
 pub fn frames_in_flight(requested: usize, jobs: usize) -> usize {
     let n = if requested == 0 {
         jobs.div_ceil(3).max(2)
