@@ -301,21 +301,22 @@ fn kept(mask: Option<&Mask>, w: usize, h: usize, p: [f64; 2]) -> bool {
 
 /// Flags [`DotFlags::ROI_EDGE`] on every found seed one of whose 8 lattice neighbours is
 /// predicted (`predict(i, j)`) inside the image but outside the region of interest.
+/// Each seed on its own (rayon; 8 grid-map predictions per seed).
 fn flag_roi_edge(
     seeds: &mut [Seed],
     mask: Option<&Mask>,
     (w, h): (usize, usize),
-    predict: impl Fn(f64, f64) -> [f64; 2],
+    predict: impl Fn(f64, f64) -> [f64; 2] + Sync,
 ) {
     if mask.is_none() {
         return;
     }
     // in the image, not in the region of interest
     let masked = |p: [f64; 2]| kept(None, w, h, p) && !kept(mask, w, h, p);
-    for s in seeds
-        .iter_mut()
-        .filter(|s| !s.flags.contains(DotFlags::MISSING))
-    {
+    seeds.par_iter_mut().with_min_len(PAR_MIN).for_each(|s| {
+        if s.flags.contains(DotFlags::MISSING) {
+            return;
+        }
         let (i, j) = (s.index.i as f64, s.index.j as f64);
         let edge = [-1.0, 0.0, 1.0].iter().any(|&dj| {
             [-1.0, 0.0, 1.0]
@@ -325,7 +326,7 @@ fn flag_roi_edge(
         if edge {
             s.flags |= DotFlags::ROI_EDGE;
         }
-    }
+    });
 }
 
 /// Whether a kept pixel of the image lies in the 3x3 block around the pixel nearest to `p`.

@@ -24,6 +24,7 @@
 
 use crate::error::{IoError, IoErrorKind};
 use bostrack_core::{Image, SampleFormat};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::path::Path;
@@ -35,6 +36,9 @@ pub const PILE_MIN: usize = 3;
 pub const PILE_RATIO: usize = 4;
 /// Sample values below the largest one compared with it.
 pub const PILE_BELOW: u64 = 8;
+
+/// Samples per rayon task of the clip level's passes over the image (a 1-MP image: 16 tasks).
+const CLIP_CHUNK: usize = 1 << 16;
 
 /// Camera bit depths that the significant-bits rule recognises below a 16-bit container.
 const CAMERA_BITS: [u32; 4] = [8, 10, 12, 14];
@@ -194,15 +198,25 @@ impl fmt::Display for ClipLevel {
 /// The clip level of `img` from its samples and, when known, the file's MaxSampleValue tag (see
 /// the module documentation for the rules).
 pub fn find_clip_level(img: &Image, max_sample_value: Option<f64>) -> ClipLevel {
-    let finite = || img.data().iter().copied().filter(|v| v.is_finite());
+    let chunks = || img.data().par_chunks(CLIP_CHUNK);
     // One pass for the largest sample and the OR of the samples (their common power of two);
     // one more counts the clipped pixels, and the pile-up test one more (issue 17: four passes
     // with an Option fold cost 65 instructions per pixel, 1.6 % of `locate` on the sample).
-    let (mut max, mut or) = (f64::NEG_INFINITY, 0u64);
-    for v in finite() {
-        max = max.max(v);
-        or |= v.max(0.0) as u64;
-    }
+    // Each pass runs over blocks of rows on the current rayon pool: the maximum, the OR and
+    // the counts do not depend on the order, so neither does the result.
+    let (max, or) = chunks()
+        .map(|c| {
+            let (mut max, mut or) = (f64::NEG_INFINITY, 0u64);
+            for &v in c.iter().filter(|v| v.is_finite()) {
+                max = max.max(v);
+                or |= v.max(0.0) as u64;
+            }
+            (max, or)
+        })
+        .reduce(
+            || (f64::NEG_INFINITY, 0u64),
+            |a, b| (a.0.max(b.0), a.1 | b.1),
+        );
     let max_sample = max.is_finite().then_some(max);
     let meta = &img.meta;
     let container = match meta.sample_format {
@@ -214,7 +228,11 @@ pub fn find_clip_level(img: &Image, max_sample_value: Option<f64>) -> ClipLevel 
     let with = |level: Option<f64>, source| ClipLevel {
         level,
         source,
-        clipped_pixels: level.map_or(0, |l| finite().filter(|&v| v >= l).count()),
+        clipped_pixels: level.map_or(0, |l| {
+            chunks()
+                .map(|c| c.iter().filter(|&&v| v.is_finite() && v >= l).count())
+                .sum()
+        }),
         max_sample,
         container,
     };
@@ -250,21 +268,36 @@ pub fn find_clip_level(img: &Image, max_sample_value: Option<f64>) -> ClipLevel 
 
 /// Whether the largest sample `m` holds a pile-up (module documentation, rule 2).
 fn is_pile_up(img: &Image, m: f64, step: f64) -> bool {
-    let mut at = 0usize;
-    let mut below = [0usize; PILE_BELOW as usize];
-    let mut n = 0usize;
+    type Counts = (usize, [usize; PILE_BELOW as usize], usize);
     let lo = m - PILE_BELOW as f64 * step;
-    for &v in img.data().iter().filter(|v| v.is_finite()) {
-        n += 1;
-        if v == m {
-            at += 1;
-        } else if v >= lo {
-            let k = ((m - v) / step).round() as usize;
-            if (1..=below.len()).contains(&k) && (m - v) == k as f64 * step {
-                below[k - 1] += 1;
+    let (at, below, n) = img
+        .data()
+        .par_chunks(CLIP_CHUNK)
+        .map(|c| {
+            let (mut at, mut below, mut n): Counts = (0, [0; PILE_BELOW as usize], 0);
+            for &v in c.iter().filter(|v| v.is_finite()) {
+                n += 1;
+                if v == m {
+                    at += 1;
+                } else if v >= lo {
+                    let k = ((m - v) / step).round() as usize;
+                    if (1..=below.len()).contains(&k) && (m - v) == k as f64 * step {
+                        below[k - 1] += 1;
+                    }
+                }
             }
-        }
-    }
+            (at, below, n)
+        })
+        .reduce(
+            || (0, [0; PILE_BELOW as usize], 0),
+            |a: Counts, b: Counts| {
+                let mut below = a.1;
+                for (x, y) in below.iter_mut().zip(b.1) {
+                    *x += y;
+                }
+                (a.0 + b.0, below, a.2 + b.2)
+            },
+        );
     let most_below = below.into_iter().max().unwrap_or(0);
     at >= PILE_MIN && at >= PILE_RATIO * most_below && 2 * at <= n
 }

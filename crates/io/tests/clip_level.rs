@@ -105,3 +105,38 @@ fn the_real_sample_is_12_bit() {
     let (_, c) = read_image_clipped(&dir.join("ref-stack/im_0001.tif"), Saturation::Auto).unwrap();
     assert_eq!((c.level, c.source), (Some(4095.0), ClipSource::Container));
 }
+
+/// The clip level's passes run over blocks of the image on rayon: level, source, clipped count
+/// and largest sample are the same on 1 and 3 threads, for a pile-up spread over many blocks
+/// (300,000 samples: 5 blocks) and for 12-bit data in a 16-bit container.
+#[test]
+fn the_clip_level_does_not_depend_on_the_thread_count() {
+    let n = 300_000usize;
+    // a pile-up at 3000 in every block (one sample in 500), the rest below
+    let piled: Vec<f64> = (0..n)
+        .map(|k| {
+            if k % 500 == 7 {
+                3000.0
+            } else {
+                (k % 2990) as f64
+            }
+        })
+        .collect();
+    let twelve: Vec<f64> = (0..n).map(|k| ((k * 7919) % 4000) as f64).collect();
+    for data in [piled, twelve] {
+        let img = Image::new(600, n / 600, data, ImageMeta::synthetic(16)).unwrap();
+        let on = |threads: usize| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap()
+                .install(|| bostrack_io::find_clip_level(&img, None))
+        };
+        let (a, b) = (on(1), on(3));
+        assert_eq!(
+            (a.level, a.source, a.clipped_pixels, a.max_sample),
+            (b.level, b.source, b.clipped_pixels, b.max_sample)
+        );
+        assert!(a.level.is_some());
+    }
+}

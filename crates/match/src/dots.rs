@@ -5,7 +5,12 @@ use crate::error::MatchError;
 use crate::nearest::{NearestConfig, iterate, mutual_pass_sets};
 use crate::points::{PointSet, median};
 use bostrack_core::{DotFit, DotFlags, GridIndex};
+use rayon::prelude::*;
 use std::collections::HashMap;
+
+/// Fewest dots per rayon task of the per-dot loops (each dot's work is a few hundred
+/// instructions: smaller tasks cost more to schedule than they save).
+const PAR_MIN: usize = 512;
 
 /// How [`match_dots`] pairs the records.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
@@ -420,8 +425,11 @@ fn index_pair_check(
     let predicted: Vec<[f64; 2]> = (0..n)
         .map(|i| [ref_pos[i][0] + pred[i][0], ref_pos[i][1] + pred[i][1]])
         .collect();
-    // forward: nearest usable gradient dot within the radius
+    // forward: nearest usable gradient dot within the radius (each dot on its own: rayon,
+    // collected in dot order)
     let forward: Vec<Option<usize>> = (0..n)
+        .into_par_iter()
+        .with_min_len(PAR_MIN)
         .map(|i| {
             if !use_ref[i] {
                 return None;
@@ -435,15 +443,20 @@ fn index_pair_check(
     for k in forward.iter().flatten() {
         hits[*k] = hits[*k].saturating_add(1);
     }
-    // backward: nearest predicted position of a usable reference dot, built on first need
-    let mut pred_set: Option<PointSet> = None;
-    let mut backward = |g: &[f64; 2]| -> Option<usize> {
-        pred_set
-            .get_or_insert_with(|| PointSet::new(&predicted, |i| use_ref[i]))
-            .nearest(g)
-            .map(|(m, _)| m)
+    // backward: nearest predicted position of a usable reference dot, built only when some
+    // pair needs a backward query (the conditions below)
+    let needs_backward = (0..n).any(|i| {
+        paired[i].is_some_and(|j| {
+            forward[i].is_some_and(|k| k != j) || hits[j] > u32::from(forward[i] == Some(j))
+        })
+    });
+    let pred_set = needs_backward.then(|| PointSet::new(&predicted, |i| use_ref[i]));
+    let backward = |g: &[f64; 2]| -> Option<usize> {
+        pred_set.as_ref().and_then(|s| s.nearest(g)).map(|(m, _)| m)
     };
     (0..n)
+        .into_par_iter()
+        .with_min_len(PAR_MIN)
         .map(|i| {
             let Some(j) = paired[i] else { return false };
             let own = forward[i] == Some(j);
@@ -508,6 +521,8 @@ fn by_grid_index(
     );
     let predict_all = |want: &[bool], excluded: &[bool]| -> Vec<[f64; 2]> {
         (0..want.len())
+            .into_par_iter()
+            .with_min_len(PAR_MIN)
             .map(|i| {
                 if want[i] {
                     predictor.predict(i, excluded)

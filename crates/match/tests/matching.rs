@@ -403,3 +403,33 @@ fn wrong_index_pairs_in_large_fields_are_flagged() {
         }
     }
 }
+
+/// The per-dot loops run on rayon: the pairs, their flags and the passes are the same on 1 and
+/// 3 threads (wrong index pairs included, so that the check's every branch runs; 1,600 dots,
+/// above the loops' task size).
+#[test]
+fn matching_does_not_depend_on_the_thread_count() {
+    let (n, s) = (40usize, 8.0);
+    let c = [156.0, 148.0];
+    let f = move |p: [f64; 2]| bump(p, c, 0.6 * s, 3.0 * s, [0.8, 0.6]);
+    let (reference, mut gradient) = indexed_pair(n, s, f, 77);
+    let t = gradient[19 * n + 18].index;
+    gradient[19 * n + 18].index = gradient[19 * n + 19].index;
+    gradient[19 * n + 19].index = t;
+    // a dot without partner index, found by the nearest-neighbour fall-back
+    gradient[5].index.i += 1000;
+    let on = |threads: usize| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+            .install(|| match_dots(&reference, &gradient, &MatchConfig::for_spacing(s)).unwrap())
+    };
+    let (a, b) = (on(1), on(3));
+    assert!(
+        a.pairs
+            .iter()
+            .any(|p| p.flags.contains(DotFlags::GRID_MISMATCH))
+    );
+    assert_eq!(a, b);
+}

@@ -67,6 +67,8 @@ use record::{RUN_RECORD, RunRecord, SHARDS_DIR};
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
 
 /// What stops a batch command: configuration, reference-side or output-folder problems. A
@@ -536,11 +538,12 @@ pub fn run_batch(
 
     progress.start(mine.len() - n_skip, n_skip);
     let total = frames.len();
-    let outcomes: Vec<(FrameStatus, Option<String>)> = mine
-        .par_iter()
-        .zip(actions.par_iter())
-        .zip(fingerprints.par_iter())
-        .map(|((f, action), fingerprint)| {
+    // At most `lanes` frames at once, each using the whole pool for its stages: the memory
+    // of a run is bounded by the frames in flight, not by the threads (issue 17).
+    let lanes = crate::jobs::frames_in_flight(plan.config.run.frames_in_flight, jobs);
+    let outcomes: Vec<(FrameStatus, Option<String>)> = in_lanes(mine.len(), lanes, |k| {
+        let (f, action, fingerprint) = (mine[k], &actions[k], &fingerprints[k]);
+        {
             if *action == Action::Skip || progress.cancelled() {
                 return (FrameStatus::Skipped, None);
             }
@@ -576,8 +579,8 @@ pub fn run_batch(
                 seconds: t.elapsed().as_secs_f64(),
             });
             (status, error)
-        })
-        .collect();
+        }
+    });
     progress.finish();
     drop(ctx);
     if progress.cancelled() {
@@ -649,6 +652,40 @@ pub fn run_batch(
     }
     report.seconds = t0.elapsed().as_secs_f64();
     Ok(report)
+}
+
+/// `f(0), ..., f(n - 1)` on the current rayon pool with at most `lanes` calls in progress at
+/// once (each lane takes the next index when its call returns; the calls' own parallel loops
+/// use every thread of the pool); the results in index order.
+///
+/// A plain parallel iterator over the frames would start as many frames as there are threads,
+/// and more: a thread waiting inside one frame's parallel loop may steal and start another
+/// frame. Lanes bound the frames in flight whatever the pool does.
+fn in_lanes<T: Send>(n: usize, lanes: usize, f: impl Fn(usize) -> T + Sync) -> Vec<T> {
+    let next = AtomicUsize::new(0);
+    let slots: Vec<Mutex<Option<T>>> = (0..n).map(|_| Mutex::new(None)).collect();
+    rayon::scope(|s| {
+        for _ in 0..lanes.clamp(1, n.max(1)) {
+            s.spawn(|_| {
+                loop {
+                    let k = next.fetch_add(1, Ordering::Relaxed);
+                    if k >= n {
+                        break;
+                    }
+                    let r = f(k);
+                    *slots[k].lock().unwrap_or_else(|e| e.into_inner()) = Some(r);
+                }
+            });
+        }
+    });
+    slots
+        .into_iter()
+        .map(|m| {
+            m.into_inner()
+                .unwrap_or_else(|e| e.into_inner())
+                .expect("every index is taken by a lane")
+        })
+        .collect()
 }
 
 /// The outcome of one shard: `DIR/shards/shard-K-of-N.json`.
@@ -958,6 +995,29 @@ fn json_to_toml(v: &serde_json::Value) -> Option<toml::Value> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn lanes_bound_the_calls_in_flight_and_keep_the_order() {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(4)
+            .build()
+            .unwrap();
+        let (now, most) = (AtomicUsize::new(0), AtomicUsize::new(0));
+        let out = pool.install(|| {
+            in_lanes(40, 2, |k| {
+                let n = now.fetch_add(1, Ordering::SeqCst) + 1;
+                most.fetch_max(n, Ordering::SeqCst);
+                // an inner parallel loop: a waiting thread must not start another call
+                let s: usize = (0..2000usize).into_par_iter().map(|x| x % 7).sum();
+                now.fetch_sub(1, Ordering::SeqCst);
+                (k, s)
+            })
+        });
+        assert_eq!(out.len(), 40);
+        assert!(out.iter().enumerate().all(|(i, &(k, s))| i == k && s > 0));
+        assert!(most.load(Ordering::SeqCst) <= 2);
+        assert!(in_lanes(0, 3, |k| k).is_empty());
+    }
 
     #[test]
     fn frames_are_numbered_and_stems_checked() {

@@ -366,4 +366,8 @@ impl Default for OutputConfig {
 pub struct RunConfig {
     /// Worker threads; 0 = every CPU available to the process (see [`crate::available_jobs`]).
     pub jobs: usize,
+    /// Most frames processed at once (each holds its image and fit state, ~56 MB for a 1-MP
+    /// frame); their stages share the `jobs` threads. 0 = automatic
+    /// ([`crate::frames_in_flight`]).
+    pub frames_in_flight: usize,
 }

@@ -22,6 +22,21 @@ pub fn resolve_jobs(requested: usize) -> usize {
     }
 }
 
+/// The frames a run processes at once on `jobs` threads: `requested`, or with 0 (automatic)
+/// a third of the threads, rounded up, and at least 2. Each frame's stages run in parallel on
+/// the whole pool, so fewer frames than threads still keep the cores busy, while the memory
+/// of the frames in flight (image, fit canvas and records: ~56 MB per 1-MP frame) stays
+/// bounded: 16 jobs on 1-MP frames hold 6 frames, 0.42-0.46 GB in all (issue 17); 16
+/// frames would be 1 GB.
+pub fn frames_in_flight(requested: usize, jobs: usize) -> usize {
+    let n = if requested == 0 {
+        jobs.div_ceil(3).max(2)
+    } else {
+        requested
+    };
+    n.clamp(1, jobs.max(1))
+}
+
 fn slurm_cpus(value: Option<&str>) -> Option<usize> {
     value?.trim().parse::<usize>().ok().filter(|&n| n > 0)
 }
@@ -37,6 +52,18 @@ mod tests {
         assert_eq!(slurm_cpus(Some("0")), None);
         assert_eq!(slurm_cpus(Some("4(x2)")), None);
         assert_eq!(slurm_cpus(None), None);
+    }
+
+    #[test]
+    fn frames_in_flight_is_a_third_of_the_threads_unless_set() {
+        assert_eq!(frames_in_flight(0, 16), 6);
+        assert_eq!(frames_in_flight(0, 4), 2);
+        assert_eq!(frames_in_flight(0, 2), 2);
+        assert_eq!(frames_in_flight(0, 1), 1);
+        assert_eq!(frames_in_flight(5, 16), 5);
+        // never more frames than threads, never none
+        assert_eq!(frames_in_flight(32, 16), 16);
+        assert_eq!(frames_in_flight(0, 0), 1);
     }
 
     #[test]

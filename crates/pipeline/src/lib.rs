@@ -65,7 +65,7 @@ pub use density::{
 };
 pub use error::{ConfigError, PipelineError};
 pub use files::{glob_match, list_matching, natural_cmp};
-pub use jobs::{MAX_JOBS, available_jobs, resolve_jobs};
+pub use jobs::{MAX_JOBS, available_jobs, frames_in_flight, resolve_jobs};
 pub use lattice::{Field, FieldValues, LatticeFields, flag_bits, unit_of};
 pub use load::{
     MAX_CONFIG_BYTES, load_config, load_toml, parse_config, parse_toml, read_config_text,

@@ -252,7 +252,7 @@ mod tests {
         let e = err("[run]\ncolour = true\n");
         let msg = e.to_string();
         assert!(
-            msg.contains("unknown key `colour` in [run] (valid keys: jobs)"),
+            msg.contains("unknown key `colour` in [run] (valid keys: jobs, frames_in_flight)"),
             "{msg}"
         );
     }

@@ -312,14 +312,20 @@ impl Validator<'_> {
         cfg.fit
             .validate()
             .map_err(|e| self.invalid("fit", e.to_string()))?;
-        if cfg.run.jobs > MAX_JOBS {
-            return Err(self.invalid(
-                "run.jobs",
-                format!(
-                    "must be 0 (every available CPU) to {MAX_JOBS}, got {}",
-                    cfg.run.jobs
-                ),
-            ));
+        for (key, value, zero) in [
+            ("run.jobs", cfg.run.jobs, "every available CPU"),
+            (
+                "run.frames_in_flight",
+                cfg.run.frames_in_flight,
+                "automatic",
+            ),
+        ] {
+            if value > MAX_JOBS {
+                return Err(self.invalid(
+                    key,
+                    format!("must be 0 ({zero}) to {MAX_JOBS}, got {value}"),
+                ));
+            }
         }
         if cfg.uncertainty.ar_variant == ArVariant::Bounds
             && !cfg.fit.bound
@@ -582,6 +588,11 @@ mod tests {
                 "[run]\njobs = 5000\n",
                 "run.jobs",
                 "0 (every available CPU) to 1024",
+            ),
+            (
+                "[run]\nframes_in_flight = 5000\n",
+                "run.frames_in_flight",
+                "0 (automatic) to 1024",
             ),
             (
                 "[detect]\nspacing = 0.001\n",

@@ -329,11 +329,20 @@ pub(crate) const SECTIONS: &[SectionDoc] = &[
     SectionDoc {
         name: "run",
         doc: "How the work is run.",
-        keys: &[key(
-            "jobs",
-            "Worker threads; 0 = every CPU available to the process (cgroup quota,\n\
-             SLURM_CPUS_PER_TASK). The command-line option --jobs overrides it.",
-        )],
+        keys: &[
+            key(
+                "jobs",
+                "Worker threads; 0 = every CPU available to the process (cgroup quota,\n\
+                 SLURM_CPUS_PER_TASK). The command-line option --jobs overrides it.",
+            ),
+            key(
+                "frames_in_flight",
+                "Most frames processed at once; their stages share the worker threads. Each\n\
+                 holds its image, fit canvas and records (~56 MB for a 1-MP frame), so this\n\
+                 bounds the memory of a run. 0 = a third of the worker threads, rounded up,\n\
+                 and at least 2 (16 jobs: 6 frames).",
+            ),
+        ],
     },
 ];
 
