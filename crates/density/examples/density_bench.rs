@@ -1,14 +1,15 @@
 //! Benchmark of the density integration with the full per-node uncertainty (issue 15):
 //!
 //! ```text
-//! cargo run --release -p bostrack-density --example density_bench [-- [--quick] [--no-dense] [DOTS_CSV]]
+//! cargo run --release -p bostrack-density --example density_bench [-- [--quick] [--no-dense] [--dense-up-to=N] [DOTS_CSV]]
 //! ```
 //!
 //! 1. a 128 × 128 lattice (16,384 nodes; rotated, with holes, uncertainties varying by 4×):
 //!    WLS and Poisson, solve + exact uncertainty, best of 3 wall times;
 //! 2. the dense-inverse reference (the published code's way) against the sparse path on the
 //!    lattices up to 128 × 128 (WLS; Poisson up to 64 × 64; `--quick`: 32 × 32 only;
-//!    `--no-dense`: none; 128 × 128 takes minutes and 6 GB), and the ratio;
+//!    `--no-dense`: none; `--dense-up-to=64`: 32 and 64; 128 × 128 takes minutes and 6 GB), and
+//!    the ratio;
 //! 3. with `DOTS_CSV` (a frame's `dots.csv` from `bostrack run` with the optics sections: the
 //!    real sample's lattice), the same on that lattice (its valid dots, the outer ring as the
 //!    Dirichlet nodes).
@@ -164,7 +165,13 @@ fn main() {
     } else {
         &[32, 64, 90, 128]
     };
-    for &n in dense_sizes {
+    let up_to: i32 = args
+        .iter()
+        .find_map(|a| a.strip_prefix("--dense-up-to="))
+        .map_or(i32::MAX, |v| {
+            v.parse().expect("--dense-up-to=N: a lattice size")
+        });
+    for &n in dense_sizes.iter().filter(|&&n| n <= up_to) {
         let nodes = lattice(n);
         // Poisson's dense reference also forms the dense N × 2N sandwich factor: 64 × 64 at most
         let methods: &[Method] = if n <= 64 {

@@ -105,7 +105,7 @@ fn main() {
     let mut site_err: HashMap<[i32; 2], ([f64; 2], usize)> = HashMap::new();
     let mut last_nodes: Vec<Node> = Vec::new();
     let mut last_u: Vec<f64> = Vec::new();
-    let mut radial = vec![(0.0f64, 0usize); 12];
+    let mut radial = [(0.0f64, 0usize); 12];
     let normal = Normal::new(0.0, 1.0).unwrap();
     let mut median_u = Vec::new();
     for seed in 0..campaigns {
