@@ -78,6 +78,34 @@ pub fn optional(v: Option<f64>) -> String {
     v.map_or_else(String::new, number)
 }
 
+/// Significant digits of a cell in SI units ([`scientific`]).
+pub const SIGNIFICANT: usize = 7;
+
+/// A floating-point cell in SI units (metres, kg/m³, kg/m⁴: the density's columns): scientific
+/// notation with [`SIGNIFICANT`] significant digits, `format!("{v:.6e}")` (`1.204000e0`,
+/// `-8.123457e-5`), so that small values keep their digits (fixed decimals would give a u_ρ of
+/// 1e-4 kg/m³ two of them); unknown values (NaN, ±∞) are the empty field as in [`number`].
+///
+/// ```
+/// use bostrack_core::table::scientific;
+/// assert_eq!(scientific(1.204), "1.204000e0");
+/// assert_eq!(scientific(-1.23456789e-5), "-1.234568e-5");
+/// assert_eq!(scientific(f64::NAN), "");
+/// assert_eq!("1.234568e-5".parse::<f64>().unwrap(), 1.234568e-5);
+/// ```
+pub fn scientific(v: f64) -> String {
+    if v.is_finite() {
+        format!("{v:.prec$e}", prec = SIGNIFICANT - 1)
+    } else {
+        String::new()
+    }
+}
+
+/// [`scientific`] of a value that may be absent (`None`: the empty field).
+pub fn optional_scientific(v: Option<f64>) -> String {
+    v.map_or_else(String::new, scientific)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

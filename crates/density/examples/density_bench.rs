@@ -1,20 +1,21 @@
 //! Benchmark of the density integration with the full per-node uncertainty (issue 15):
 //!
 //! ```text
-//! cargo run --release -p bostrack-density --example density_bench [-- [--quick] [--no-dense] [DOTS_CSV]]
+//! cargo run --release -p bostrack-density --example density_bench [-- [--quick] [--no-dense] [--dense-up-to=N] [DOTS_CSV]]
 //! ```
 //!
 //! 1. a 128 × 128 lattice (16,384 nodes; rotated, with holes, uncertainties varying by 4×):
 //!    WLS and Poisson, solve + exact uncertainty, best of 3 wall times;
 //! 2. the dense-inverse reference (the published code's way) against the sparse path on the
-//!    lattices up to 128 × 128 (`--quick`: 32 × 32 only; `--no-dense`: none; 128 × 128 takes
-//!    minutes and 6 GB), and the ratio;
+//!    lattices up to 128 × 128 (WLS; Poisson up to 64 × 64; `--quick`: 32 × 32 only;
+//!    `--no-dense`: none; `--dense-up-to=64`: 32 and 64; 128 × 128 takes minutes and 6 GB), and
+//!    the ratio;
 //! 3. with `DOTS_CSV` (a frame's `dots.csv` from `bostrack run` with the optics sections: the
 //!    real sample's lattice), the same on that lattice (its valid dots, the outer ring as the
 //!    Dirichlet nodes).
 //!
 //! Threads: `RAYON_NUM_THREADS` (the WLS path is single-threaded; Poisson's blocked solves use
-//! rayon).
+//! rayon). Timings on a shared machine vary by 1.5×: compare numbers of one run.
 
 use bostrack_density::{IntegrationConfig, Method, Node, dense_uncertainty, integrate, outer_ring};
 use std::time::Instant;
@@ -164,28 +165,43 @@ fn main() {
     } else {
         &[32, 64, 90, 128]
     };
-    for &n in dense_sizes {
-        let nodes = lattice(n);
-        let c = cfg(Method::Wls);
-        let sparse = best_of(3, || {
-            integrate(&nodes, &c).unwrap();
+    let up_to: i32 = args
+        .iter()
+        .find_map(|a| a.strip_prefix("--dense-up-to="))
+        .map_or(i32::MAX, |v| {
+            v.parse().expect("--dense-up-to=N: a lattice size")
         });
-        let f = integrate(&nodes, &c).unwrap();
-        let t = Instant::now();
-        let dense = dense_uncertainty(&nodes, &c).unwrap();
-        let td = t.elapsed().as_secs_f64();
-        let worst = f
-            .nodes
-            .iter()
-            .zip(&dense)
-            .map(|(a, b)| (a.u_rho.unwrap() - b.unwrap()).abs() / b.unwrap())
-            .fold(0.0, f64::max);
-        println!(
-            "dense reference {n}x{n} ({} unknowns, dense matrix {:.0} MB): dense {td:.3} s, sparse {sparse:.4} s, ratio {:.0}x, max rel diff {worst:.1e}",
-            f.unknowns,
-            (f.unknowns as f64).powi(2) * 8e-6,
-            td / sparse
-        );
+    for &n in dense_sizes.iter().filter(|&&n| n <= up_to) {
+        let nodes = lattice(n);
+        // Poisson's dense reference also forms the dense N × 2N sandwich factor: 64 × 64 at most
+        let methods: &[Method] = if n <= 64 {
+            &[Method::Wls, Method::Poisson]
+        } else {
+            &[Method::Wls]
+        };
+        for &method in methods {
+            let c = cfg(method);
+            let sparse = best_of(3, || {
+                integrate(&nodes, &c).unwrap();
+            });
+            let f = integrate(&nodes, &c).unwrap();
+            let t = Instant::now();
+            let dense = dense_uncertainty(&nodes, &c).unwrap();
+            let td = t.elapsed().as_secs_f64();
+            let worst = f
+                .nodes
+                .iter()
+                .zip(&dense)
+                .map(|(a, b)| (a.u_rho.unwrap() - b.unwrap()).abs() / b.unwrap())
+                .fold(0.0, f64::max);
+            println!(
+                "dense reference {n}x{n} {:<7} ({} unknowns, dense matrix {:.0} MB): dense {td:.3} s, sparse {sparse:.4} s, ratio {:.0}x, max rel diff {worst:.1e}",
+                method.name(),
+                f.unknowns,
+                (f.unknowns as f64).powi(2) * 8e-6,
+                td / sparse
+            );
+        }
     }
     if let Some(path) = csv {
         let nodes = read_dots(path);

@@ -5,13 +5,17 @@ use crate::system::System;
 use crate::{DensityError, IntegrationConfig, Method, Node};
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::cholesky::llt::factor::LltRegularization;
+use faer::linalg::matmul::matmul;
+use faer::linalg::triangular_solve::{
+    solve_lower_triangular_in_place, solve_upper_triangular_in_place,
+};
 use faer::sparse::linalg::SupernodalThreshold;
 use faer::sparse::linalg::cholesky::{
     CholeskySymbolicParams, LltRef, SymbolicCholesky, SymbolicCholeskyRaw, SymmetricOrdering,
     factorize_symbolic_cholesky,
 };
 use faer::sparse::{SparseColMat, Triplet};
-use faer::{Conj, Mat, MatRef, Par, Side};
+use faer::{Accum, Conj, Mat, MatMut, MatRef, Par, Side};
 use rayon::prelude::*;
 
 pub(crate) struct Solution {
@@ -282,9 +286,15 @@ fn residual_rms(sys: &System, unknown: &[usize], x: &[f64]) -> Option<f64> {
     (count > 0).then(|| (ss / count as f64).sqrt())
 }
 
-/// The exact diagonal of `A⁻¹ Dᵀ Σ_b D A⁻¹` for the Poisson (edge) equations: for every
-/// unknown i, `z = A⁻¹ e_i` (solves in blocks of columns, in parallel), `y = D z` over the
-/// edges, and `Var = Σ_dots wᵀ Σ_dot w` with `w = Σ_{edges of the dot} y_e v_e`.
+/// The exact diagonal of `A⁻¹ Dᵀ Σ_b D A⁻¹` for the Poisson (edge) equations, `Σ_b = J Σ Jᵀ`
+/// (each edge's right-hand side `b_e = v_e · (g_p + g_q)` shares its dots with the neighbouring
+/// edges). With `B = Σ^{1/2} Jᵀ D` (one sparse row per dot and axis: the dot's edges' ends,
+/// ≤ 5 nodes), `Var_i = ‖B A⁻¹ e_i‖²`. For every unknown, in blocks of [`BLOCK`] consecutive
+/// columns of the factor's (postordered) order and in parallel over the blocks:
+/// `Y = L⁻¹ P E` by a supernodal forward solve that skips the supernodes the block's columns do
+/// not reach (only their paths to the root of the elimination tree are non-zero), `X = L⁻ᵀ Y`
+/// (every supernode: dense), then `Var = Σ_rows (B X)²` with the block's columns contiguous in
+/// memory. `O(N nnz(L))` time, `O(nnz(L) + threads · N · BLOCK)` memory, exact.
 fn sandwich_diagonal(
     factor: &Factor,
     sys: &System,
@@ -292,63 +302,245 @@ fn sandwich_diagonal(
     n: usize,
     nodes: &[Node],
 ) -> Vec<f64> {
-    // flat edges: the unknowns at both ends (usize::MAX: a Dirichlet node, 0 there), the two
-    // dots and the vector multiplying their gradients
-    struct Edge {
-        kq: usize,
-        kp: usize,
-        p: usize,
-        q: usize,
-        v: [f64; 2],
+    let SymbolicCholeskyRaw::Supernodal(s) = factor.symbolic.raw() else {
+        unreachable!("the factor is supernodal (FORCE_SUPERNODAL)");
+    };
+    // the factor's index of each unknown: (P A Pᵀ)_{ij} = A_{fwd[i], fwd[j]}
+    let (fwd, inv): (Vec<usize>, Vec<usize>) = match factor.symbolic.perm() {
+        Some(perm) => {
+            let (f, i) = perm.arrays();
+            (f.to_vec(), i.to_vec())
+        }
+        None => ((0..n).collect(), (0..n).collect()),
+    };
+    let b = sandwich_rows(sys, unknown, &inv, nodes);
+    let (begin, end) = (s.supernode_begin(), s.supernode_end());
+    let (rptr, vptr, ridx) = (s.col_ptr_for_row_idx(), s.col_ptr_for_val(), s.row_idx());
+    let ns = s.n_supernodes();
+    let mut owner = vec![0usize; n];
+    for t in 0..ns {
+        owner[begin[t]..end[t]].fill(t);
     }
-    let edges: Vec<Edge> = sys
-        .groups
-        .iter()
-        .zip(&sys.edge_sources)
-        .map(|(g, src)| Edge {
-            kq: unknown[g.rows[0][0].0],
-            kp: unknown[g.rows[0][1].0],
-            p: src[0].0,
-            q: src[1].0,
-            v: src[0].1,
-        })
-        .collect();
-    let u2: Vec<[f64; 2]> = nodes
-        .iter()
-        .map(|d| [d.u_gradient[0].powi(2), d.u_gradient[1].powi(2)])
-        .collect();
+    let l = &factor.values;
+    // per supernode: width, the dense block (rows × width, column-major) and its row pattern
+    // below the diagonal block
+    let panel = |t: usize| {
+        let w = end[t] - begin[t];
+        let rows = (vptr[t + 1] - vptr[t]) / w;
+        let lt = MatRef::from_column_major_slice(&l[vptr[t]..vptr[t + 1]], rows, w);
+        let pat = &ridx[rptr[t]..rptr[t] + rows - w];
+        (w, lt, pat)
+    };
     let starts: Vec<usize> = (0..n).step_by(BLOCK).collect();
-    let blocks: Vec<Vec<f64>> = starts
+    let var_perm: Vec<Vec<f64>> = starts
         .par_iter()
-        .map(|&s0| {
+        .map_init(Vec::<f64>::new, |x, &s0| {
             let m = BLOCK.min(n - s0);
-            let mut z = Mat::<f64>::zeros(n, m);
-            for c in 0..m {
-                z[(s0 + c, c)] = 1.0;
-            }
-            factor.solve(&mut z);
-            let mut w = vec![[0.0f64; 2]; nodes.len()];
-            (0..m)
-                .map(|c| {
-                    let zc = z.col(c).try_as_col_major().expect("contiguous").as_slice();
-                    let at = |k: usize| if k == usize::MAX { 0.0 } else { zc[k] };
-                    for e in &edges {
-                        let y = at(e.kq) - at(e.kp);
-                        let d = [y * e.v[0], y * e.v[1]];
-                        w[e.p][0] += d[0];
-                        w[e.p][1] += d[1];
-                        w[e.q][0] += d[0];
-                        w[e.q][1] += d[1];
-                    }
-                    let mut var = 0.0;
-                    for (wd, u) in w.iter_mut().zip(&u2) {
-                        var += wd[0] * wd[0] * u[0] + wd[1] * wd[1] * u[1];
-                        *wd = [0.0, 0.0];
-                    }
-                    var
-                })
-                .collect()
+            block_variance(&panel, &owner, begin, end, ns, &b, x, s0, m)
         })
         .collect();
-    blocks.into_iter().flatten().collect()
+    let mut out = vec![0.0; n];
+    for (i, v) in var_perm.into_iter().flatten().enumerate() {
+        out[fwd[i]] = v;
+    }
+    out
+}
+
+/// The variances of the unknowns `s0 .. s0 + m` (the factor's order): `X = (L Lᵀ)⁻¹ E` in the
+/// row-major buffer `x` (`n × m`: a row's m values contiguous), then `Σ_rows (B X)²`.
+#[allow(clippy::too_many_arguments)]
+fn block_variance<'a>(
+    panel: &impl Fn(usize) -> (usize, MatRef<'a, f64>, &'a [usize]),
+    owner: &[usize],
+    begin: &[usize],
+    end: &[usize],
+    ns: usize,
+    b: &Rows,
+    x: &mut Vec<f64>,
+    s0: usize,
+    m: usize,
+) -> Vec<f64> {
+    let n = owner.len();
+    let arch = pulp::Arch::new();
+    x.clear();
+    x.resize(n * m, 0.0);
+    let mut tmp = Vec::<f64>::new();
+    let mut active = vec![false; ns];
+    for c in 0..m {
+        x[(s0 + c) * m + c] = 1.0;
+        active[owner[s0 + c]] = true;
+    }
+    // forward: L Y = P E, only the supernodes the columns reach
+    for t in 0..ns {
+        if !active[t] {
+            continue;
+        }
+        let (w, lt, pat) = panel(t);
+        let (l_jj, l_rj) = lt.split_at_row(w);
+        let (b0, b1) = (begin[t] * m, end[t] * m);
+        solve_lower_triangular_in_place(
+            l_jj,
+            MatMut::from_row_major_slice_mut(&mut x[b0..b1], w, m),
+            Par::Seq,
+        );
+        let r = pat.len();
+        if r == 0 {
+            continue;
+        }
+        if tmp.len() < r * m {
+            tmp.resize(r * m, 0.0);
+        }
+        matmul(
+            MatMut::from_row_major_slice_mut(&mut tmp[..r * m], r, m),
+            Accum::Replace,
+            l_rj,
+            MatRef::from_row_major_slice(&x[b0..b1], w, m),
+            1.0,
+            Par::Seq,
+        );
+        arch.dispatch(Scatter {
+            x,
+            tmp: &tmp[..r * m],
+            pat,
+            m,
+        });
+        active[owner[pat[0]]] = true;
+    }
+    // backward: Lᵀ X = Y, every supernode
+    for t in (0..ns).rev() {
+        let (w, lt, pat) = panel(t);
+        let (l_jj, l_rj) = lt.split_at_row(w);
+        let (b0, b1) = (begin[t] * m, end[t] * m);
+        let r = pat.len();
+        if r > 0 {
+            if tmp.len() < r * m {
+                tmp.resize(r * m, 0.0);
+            }
+            for (k, &g) in pat.iter().enumerate() {
+                tmp[k * m..(k + 1) * m].copy_from_slice(&x[g * m..(g + 1) * m]);
+            }
+            matmul(
+                MatMut::from_row_major_slice_mut(&mut x[b0..b1], w, m),
+                Accum::Add,
+                l_rj.transpose(),
+                MatRef::from_row_major_slice(&tmp[..r * m], r, m),
+                -1.0,
+                Par::Seq,
+            );
+        }
+        solve_upper_triangular_in_place(
+            l_jj.transpose(),
+            MatMut::from_row_major_slice_mut(&mut x[b0..b1], w, m),
+            Par::Seq,
+        );
+    }
+    let mut var = vec![0.0f64; m];
+    arch.dispatch(SumOfSquares {
+        b,
+        x,
+        m,
+        var: &mut var,
+    });
+    var
+}
+
+/// `x[pat[k]] −= tmp[k]` row by row (`m` values a row), with the machine's vector instructions
+/// (`pulp` compiles the plain loops for the features found at run time).
+struct Scatter<'a> {
+    x: &'a mut [f64],
+    tmp: &'a [f64],
+    pat: &'a [usize],
+    m: usize,
+}
+
+impl pulp::WithSimd for Scatter<'_> {
+    type Output = ();
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _: S) {
+        let m = self.m;
+        for (k, &g) in self.pat.iter().enumerate() {
+            let row = &mut self.x[g * m..(g + 1) * m];
+            for (a, v) in row.iter_mut().zip(&self.tmp[k * m..(k + 1) * m]) {
+                *a -= v;
+            }
+        }
+    }
+}
+
+/// `var[c] += Σ_rows (Σ_terms coef · x[k, c])²`: the squared norms of the columns of `B X`.
+struct SumOfSquares<'a> {
+    b: &'a Rows,
+    x: &'a [f64],
+    m: usize,
+    var: &'a mut [f64],
+}
+
+impl pulp::WithSimd for SumOfSquares<'_> {
+    type Output = ();
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _: S) {
+        let (m, x) = (self.m, self.x);
+        let (mut a0, mut a1) = (vec![0.0f64; m], vec![0.0f64; m]);
+        for row in self.b.ptr.windows(2) {
+            let terms = &self.b.terms[row[0]..row[1]];
+            let (k, [c0, c1]) = terms[0];
+            for ((a, b), v) in a0.iter_mut().zip(a1.iter_mut()).zip(&x[k * m..(k + 1) * m]) {
+                *a = c0 * v;
+                *b = c1 * v;
+            }
+            for &(k, [c0, c1]) in &terms[1..] {
+                for ((a, b), v) in a0.iter_mut().zip(a1.iter_mut()).zip(&x[k * m..(k + 1) * m]) {
+                    *a += c0 * v;
+                    *b += c1 * v;
+                }
+            }
+            for ((v, a), b) in self.var.iter_mut().zip(&a0).zip(&a1) {
+                *v += a * a + b * b;
+            }
+        }
+    }
+}
+
+/// `B = Σ^{1/2} Jᵀ D` as sparse rows, the two rows of a dot (its two axes) together: the
+/// unknowns of the dot's edges (the factor's order) and the two coefficients of each.
+struct Rows {
+    ptr: Vec<usize>,
+    terms: Vec<(usize, [f64; 2])>,
+}
+
+fn sandwich_rows(sys: &System, unknown: &[usize], inv: &[usize], nodes: &[Node]) -> Rows {
+    // per dot: (factor index, coefficients) of each edge end, merged below
+    let mut per: Vec<Vec<(usize, [f64; 2])>> = vec![Vec::new(); nodes.len()];
+    for (g, src) in sys.groups.iter().zip(&sys.edge_sources) {
+        let (q, p) = (g.rows[0][0].0, g.rows[0][1].0);
+        let v = src[0].1;
+        for dot in [src[0].0, src[1].0] {
+            for (node, sign) in [(q, 1.0), (p, -1.0)] {
+                if unknown[node] != usize::MAX {
+                    per[dot].push((inv[unknown[node]], [sign * v[0], sign * v[1]]));
+                }
+            }
+        }
+    }
+    let mut ptr = vec![0];
+    let mut terms: Vec<(usize, [f64; 2])> = Vec::new();
+    for (dot, mut t) in per.into_iter().enumerate() {
+        let u = nodes[dot].u_gradient;
+        t.sort_unstable_by_key(|e| e.0);
+        let start = terms.len();
+        for (k, c) in t {
+            let c = [u[0] * c[0], u[1] * c[1]];
+            let len = terms.len();
+            if len > start && terms[len - 1].0 == k {
+                terms[len - 1].1[0] += c[0];
+                terms[len - 1].1[1] += c[1];
+            } else {
+                terms.push((k, c));
+            }
+        }
+        if terms.len() > start {
+            ptr.push(terms.len());
+        }
+    }
+    Rows { ptr, terms }
 }

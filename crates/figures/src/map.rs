@@ -6,7 +6,7 @@ use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, VPos};
 
 use crate::FigureError;
-use crate::colour::{BAR_PANEL_W, ColourRange, Scale, draw_colour_bar, viridis};
+use crate::colour::{ColourRange, Scale, bar_panel_width, draw_colour_bar, viridis};
 use crate::error::plot_err;
 use crate::render::{Content, Figure};
 use crate::style::{LABEL_SIZE, LEGEND_SIZE, TICK_SIZE, TITLE_H, text, text_at};
@@ -250,6 +250,8 @@ pub(crate) struct MapFigure {
     /// Typical dot spacing (image px), sets the marker size.
     spacing: f64,
     scale: Option<Scale>,
+    /// Width of the colour-bar panel (px), from the scale's tick labels.
+    bar_w: u32,
     arrows: Option<Arrows>,
     /// Excluded mask region: rectangles `[x0, y0, x1, y1]` in image coordinates.
     mask_rects: Vec<[f64; 4]>,
@@ -287,6 +289,8 @@ fn build_map(
     definition: &str,
     vector: bool,
 ) -> Result<Figure, FigureError> {
+    // the layout (colour-bar panel, legend) measures text with the font
+    crate::font::ensure_font()?;
     // errors name the figure and the frame
     let what = title;
     if frame.width == 0 || frame.height == 0 {
@@ -382,7 +386,8 @@ fn build_map(
     } else if pw < 300.0 {
         (pw, ph) = (300.0, (300.0 * h / w).min(1400.0));
     }
-    let fig_w = Y_LABEL_W + pw.round() as u32 + BAR_PANEL_W + 2 * MARGIN;
+    let bar_w = bar_panel_width(scale.as_ref());
+    let fig_w = Y_LABEL_W + pw.round() as u32 + bar_w + 2 * MARGIN;
     let map = MapFigure {
         img_w: w,
         img_h: h,
@@ -392,6 +397,7 @@ fn build_map(
         unplaced: points.len() - n_placed,
         spacing,
         scale,
+        bar_w,
         arrows,
         mask_rects,
         legend_name: definition.to_string(),
@@ -526,7 +532,7 @@ impl MapFigure {
         DB::ErrorType: 'static,
     {
         let (bw, bh) = body.dim_in_pixel();
-        let avail_w = bw as f64 - (Y_LABEL_W + BAR_PANEL_W + 2 * MARGIN) as f64;
+        let avail_w = bw as f64 - (Y_LABEL_W + self.bar_w + 2 * MARGIN) as f64;
         let legend_h = self.legend_height(bw);
         let avail_h = bh as f64 - (MARGIN + X_LABEL_H + legend_h) as f64;
         if avail_w < 50.0 || avail_h < 50.0 {
@@ -542,7 +548,7 @@ impl MapFigure {
             (avail_w.floor(), (avail_w / aspect).floor())
         };
         let (pw, ph) = (pw.max(1.0) as u32, ph.max(1.0) as u32);
-        let total_w = Y_LABEL_W + pw + BAR_PANEL_W;
+        let total_w = Y_LABEL_W + pw + self.bar_w;
         let x0 = (bw.saturating_sub(total_w)) / 2;
         let y0 = MARGIN + (avail_h as u32 - ph) / 2;
         let chart_area = body
@@ -550,7 +556,7 @@ impl MapFigure {
             .shrink((x0, y0), (Y_LABEL_W + pw, ph + X_LABEL_H));
         let bar_area = body
             .clone()
-            .shrink((x0 + Y_LABEL_W + pw, y0), (BAR_PANEL_W, ph));
+            .shrink((x0 + Y_LABEL_W + pw, y0), (self.bar_w, ph));
         // display px per image px (the same on both axes)
         let zoom = pw as f64 / self.img_w;
 
@@ -717,7 +723,7 @@ impl MapFigure {
     /// entries take when laid out as [`LegendRow`] does (text measured with the same font; the
     /// zoom, which only changes the arrow's length and scale text, taken at its largest).
     fn legend_height(&self, body_w: u32) -> u32 {
-        let avail_w = body_w as f64 - (Y_LABEL_W + BAR_PANEL_W + 2 * MARGIN) as f64;
+        let avail_w = body_w as f64 - (Y_LABEL_W + self.bar_w + 2 * MARGIN) as f64;
         let zoom = (avail_w / self.img_w).max(1e-6);
         let width = body_w as i32 - 10;
         let (mut x, mut lines) = (LEGEND_X, 1);

@@ -382,15 +382,16 @@ fn pool_uncertainties(nodes: &mut [Node], node_of: &[usize], dots: &[PairDot]) {
     }
 }
 
-/// Integrates one frame's gradients (the valid dots with a gradient and its uncertainty).
-/// `quiet` is the quiescent-gas mask (`None`: the outer ring of the valid dots).
-pub fn integrate_frame(
-    plan: &DensityPlan,
+/// The lattice nodes [`integrate_frame`] integrates: the valid dots with a gradient and its
+/// uncertainty (pooled over each dot's 5 × 5 lattice neighbourhood), the Dirichlet nodes
+/// marked (inside `quiet`, or the outer ring of the valid dots); and for each dot its node
+/// (`usize::MAX`: none). For studies of the integration (`examples/density_coverage.rs`).
+pub fn frame_nodes(
     dots: &[PairDot],
     physical: &[PhysicalDot],
     quiet: Option<&Mask>,
     frame: &Path,
-) -> Result<FrameDensity, PipelineError> {
+) -> Result<(Vec<Node>, Vec<usize>), PipelineError> {
     let mut node_of = vec![usize::MAX; dots.len()];
     let mut nodes = Vec::new();
     for (k, (d, p)) in dots.iter().zip(physical).enumerate() {
@@ -430,6 +431,19 @@ pub fn integrate_frame(
             n.dirichlet = r;
         }
     }
+    Ok((nodes, node_of))
+}
+
+/// Integrates one frame's gradients (the nodes of [`frame_nodes`]). `quiet` is the
+/// quiescent-gas mask (`None`: the outer ring of the valid dots).
+pub fn integrate_frame(
+    plan: &DensityPlan,
+    dots: &[PairDot],
+    physical: &[PhysicalDot],
+    quiet: Option<&Mask>,
+    frame: &Path,
+) -> Result<FrameDensity, PipelineError> {
+    let (nodes, node_of) = frame_nodes(dots, physical, quiet, frame)?;
     let cfg = IntegrationConfig {
         method: plan.method,
         reference_density: plan.reference_density,

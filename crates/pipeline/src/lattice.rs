@@ -2,8 +2,8 @@
 //! quantity (rows i, columns j), and their files `fields.npz` (numpy) and `fields.mat` (MATLAB
 //! Level 5).
 //!
-//! The arrays are built from the **text of `dots.csv`** (every number parsed from its six-decimal
-//! field), so `fields.npz`, `fields.mat`, the Python package's `bostrack.load` and the CSV hold
+//! The arrays are built from the **text of `dots.csv`** (every number parsed from its field: six
+//! decimals, the SI columns in scientific notation, docs/CONVENTIONS.md), so `fields.npz`, `fields.mat`, the Python package's `bostrack.load` and the CSV hold
 //! the same values, bit for bit. What a file holds:
 //!
 //! | name | shape, type | meaning |

@@ -61,7 +61,7 @@ pub use config::{
 };
 pub use density::{
     DENSITY_COLUMNS, DensityPlan, DensitySection, DensitySummary, FrameDensity, PHYSICAL_COLUMNS,
-    PhysicalDot, integrate_frame,
+    PhysicalDot, frame_nodes, integrate_frame,
 };
 pub use error::{ConfigError, PipelineError};
 pub use files::{glob_match, list_matching, natural_cmp};

@@ -239,11 +239,19 @@ pub(crate) fn build(
         let jw = json_file.writer();
         write!(jw, "{head},\n  \"rows\": [").map_err(json_err)?;
 
-        let cell = |v: Option<&Value>| match v {
+        let cell = |col: &str, v: Option<&Value>| match v {
             None | Some(Value::Null) => String::new(),
             Some(Value::String(s)) => s.clone(),
-            // counts as integers, measurements by the one float convention of every table
-            Some(Value::Number(n)) if n.is_f64() => table::number(n.as_f64().unwrap_or(f64::NAN)),
+            // counts as integers, measurements by the float conventions of every table: the
+            // density's SI values in scientific notation, the others with fixed decimals
+            Some(Value::Number(n)) if n.is_f64() => {
+                let v = n.as_f64().unwrap_or(f64::NAN);
+                if col.starts_with("density.") {
+                    table::scientific(v)
+                } else {
+                    table::number(v)
+                }
+            }
             Some(v) => v.to_string(),
         };
         let mut failed = failures.iter().peekable();
@@ -270,7 +278,7 @@ pub(crate) fn build(
             rec.extend(
                 all_cols
                     .iter()
-                    .map(|c| cell(lookup.get(c.as_str()).copied())),
+                    .map(|c| cell(c, lookup.get(c.as_str()).copied())),
             );
             w.row(&rec).map_err(csv_err)?;
 

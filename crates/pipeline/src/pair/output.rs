@@ -5,7 +5,7 @@ use super::FrameResult;
 use crate::density::{DENSITY_COLUMNS, PHYSICAL_COLUMNS};
 use crate::error::PipelineError;
 use crate::table::CsvTable;
-use bostrack_core::table::optional;
+use bostrack_core::table::optional_scientific as si;
 use bostrack_displacement::{COLUMNS, write_row};
 use std::fs;
 use std::io::Write;
@@ -74,7 +74,7 @@ fn write_into(dir: &Path, result: &FrameResult) -> Result<(), PipelineError> {
 
 /// The text of `dots.csv`: [`COLUMNS`], then one row per dot ([`write_row`], the cells reused
 /// from row to row), by the one table writer; with `[optics]` the columns
-/// [`PHYSICAL_COLUMNS`] after them.
+/// [`PHYSICAL_COLUMNS`] after them (SI units: scientific notation, `table::scientific`).
 fn dots_csv(result: &FrameResult) -> std::io::Result<Vec<u8>> {
     let dots = &result.dots;
     let mut columns: Vec<&str> = COLUMNS.to_vec();
@@ -90,7 +90,7 @@ fn dots_csv(result: &FrameResult) -> std::io::Result<Vec<u8>> {
             t.row(&cells)?;
             continue;
         };
-        let pair = |v: Option<[f64; 2]>| [optional(v.map(|a| a[0])), optional(v.map(|a| a[1]))];
+        let pair = |v: Option<[f64; 2]>| [si(v.map(|a| a[0])), si(v.map(|a| a[1]))];
         row.clear();
         row.extend(cells.iter().cloned());
         row.extend(pair(p.position_m));
@@ -102,7 +102,8 @@ fn dots_csv(result: &FrameResult) -> std::io::Result<Vec<u8>> {
 }
 
 /// The text of `density.csv` ([`DENSITY_COLUMNS`], one row per dot of `dots.csv`), or `None`
-/// without `[optics]`. `valid` is true where ρ is known; `status` is `solved`, `reference` (a
+/// without `[optics]`. Positions and densities in scientific notation (`table::scientific`,
+/// docs/CONVENTIONS.md). `valid` is true where ρ is known; `status` is `solved`, `reference` (a
 /// Dirichlet node), `no_reference` (an island without one) or `hole` (not a valid dot).
 fn density_csv(result: &FrameResult) -> std::io::Result<Option<Vec<u8>>> {
     let (Some(field), Some(physical)) = (&result.density, &result.physical) else {
@@ -119,10 +120,10 @@ fn density_csv(result: &FrameResult) -> std::io::Result<Option<Vec<u8>>> {
         t.row(&[
             d.index.i.to_string(),
             d.index.j.to_string(),
-            optional(x),
-            optional(y),
-            optional(*rho),
-            optional(*u),
+            si(x),
+            si(y),
+            si(*rho),
+            si(*u),
             rho.is_some().to_string(),
             status.map_or("hole", |s| s.name()).to_string(),
         ])?;
