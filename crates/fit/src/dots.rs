@@ -156,12 +156,16 @@ pub fn fit_dots_report(
 
 /// Fits every seed's window starting from `prior` (one record per seed: fits of the same
 /// dots in a similar image, e.g. the reference's fits moved by the camera's common shift, for
-/// the images of a no-flow stack).
+/// the images of a no-flow stack, or each moved by its own tracked displacement, for a
+/// gradient frame).
 ///
 /// With [`Neighbours::Subtract`] (least-squares estimator) the first pass fits each window
 /// after subtracting the `prior` dots of its neighbours (from `tails` where given); then the
 /// iteration goes on as in [`fit_dots`] (from pass 2 on, only dots whose neighbours moved
-/// enough are refitted), so the result converges to the same joint solution. Otherwise each
+/// enough are refitted), so the result converges to the same joint solution. Seeds flagged
+/// `MISSING` are looked for as in [`fit_dots`] (their prior is neither a start nor a neighbour
+/// model), and the first pass checks the weights at its solution (the prior may be a fit of
+/// another image). Otherwise each
 /// window is fitted once from its prior's shape. A prior that is not a usable fit makes its dot
 /// start from the seed (and, as a neighbour, not be subtracted).
 ///
