@@ -107,14 +107,7 @@ pub(crate) fn track_fit_match_timed(
 
 /// `fits` with every centre moved by `shift` (px).
 pub(crate) fn moved(fits: &[DotFit], shift: [f64; 2]) -> Vec<DotFit> {
-    fits.iter()
-        .map(|f| {
-            let mut p = *f;
-            p.params.x0 += shift[0];
-            p.params.y0 += shift[1];
-            p
-        })
-        .collect()
+    moved_by(fits, |_| shift)
 }
 
 /// `fits` (one per reference seed) with every centre moved by its own tracked displacement,
@@ -124,12 +117,22 @@ fn moved_each(
     reference: &[bostrack_core::Seed],
     tracked: &[bostrack_core::Seed],
 ) -> Vec<DotFit> {
+    // (the caller checks the lengths; a seed without its pair keeps its centre)
+    moved_by(fits, |i| match (reference.get(i), tracked.get(i)) {
+        (Some(r), Some(t)) => [t.centre[0] - r.centre[0], t.centre[1] - r.centre[1]],
+        _ => [0.0, 0.0],
+    })
+}
+
+/// `fits` with centre `i` moved by `shift(i)` (px).
+fn moved_by(fits: &[DotFit], shift: impl Fn(usize) -> [f64; 2]) -> Vec<DotFit> {
     fits.iter()
-        .zip(reference.iter().zip(tracked))
-        .map(|(f, (r, t))| {
+        .enumerate()
+        .map(|(i, f)| {
+            let [dx, dy] = shift(i);
             let mut p = *f;
-            p.params.x0 += t.centre[0] - r.centre[0];
-            p.params.y0 += t.centre[1] - r.centre[1];
+            p.params.x0 += dx;
+            p.params.y0 += dy;
             p
         })
         .collect()
