@@ -56,6 +56,7 @@
 //! ```
 
 mod config;
+mod coupling;
 mod dots;
 mod error;
 mod eval;

@@ -3,7 +3,8 @@
 //! far dots still move between the last two passes (inside and outside the flow region).
 //!
 //! `RAYON_NUM_THREADS=1 cargo run --release -p bostrack-pipeline --example converge -- [--runs N]`
-//! (`BT_TOL=0.05` sets `[fit] neighbour_tolerance` for the converged runs).
+//! (`BT_TOL=0.05` sets `[fit] neighbour_tolerance` for the converged runs; `--stack-only`: the
+//! no-flow stack's linearised iteration against the pixel iteration, then stop).
 
 use bostrack_core::{DotFit, DotFlags, Image, Mask, NoiseModel, Seed};
 use bostrack_fit::{
@@ -117,30 +118,72 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             stack.push(read_image(&p)?);
         }
     }
-    let (mut t1, mut tc) = (0.0, 0.0);
-    let mut refits = Vec::new();
-    for img in &stack {
-        let t = Instant::now();
+    // the linearised iteration (the pipeline's way) against the pixel iteration and a deep one
+    let t = Instant::now();
+    let coupled =
+        NeighbourTails::coupled(&ref_fits, &det.seeds, &cfg, &stack[0], Some(&mask), &noise);
+    println!("coupling map: {:.1} ms", t.elapsed().as_secs_f64() * 1e3);
+    let deep = FitConfig {
+        neighbour_tolerance: 0.005,
+        neighbour_passes: 60,
+        ..cfg.clone()
+    };
+    let (mut tl, mut tp) = (0.0, 0.0);
+    let (mut lin_pix, mut lin_deep, mut pix_deep) = (Vec::new(), Vec::new(), Vec::new());
+    let mut one_deep = Vec::new();
+    let mut sweeps = Vec::new();
+    // one stack image refitted from the reference's fits
+    let refit = |img: &Image, cfg: &FitConfig, tails: &NeighbourTails| {
         refit_dots_report(
             img,
             Some(&mask),
             &det.seeds,
-            &one,
+            cfg,
             &noise,
             &ref_fits,
-            Some(&tails),
-        )?;
+            Some(tails),
+        )
+    };
+    for (k, img) in stack.iter().enumerate() {
+        let t = Instant::now();
+        let (fl, rl) = refit(img, &cfg, &coupled)?;
+        tl += t.elapsed().as_secs_f64() * 1e3;
+        let t = Instant::now();
+        let (fp, _) = refit(img, &cfg, &tails)?;
+        tp += t.elapsed().as_secs_f64() * 1e3;
+        sweeps.push((rl.linear_sweeps, rl.passes));
+        lin_pix.extend(moves(&fl, &fp, |_| true));
+        if k < 3 {
+            let (fd, _) = refit(img, &deep, &tails)?;
+            lin_deep.extend(moves(&fl, &fd, |_| true));
+            let (f1, _) = refit(img, &one, &tails)?;
+            one_deep.extend(moves(&f1, &fd, |_| true));
+            pix_deep.extend(moves(&fp, &fd, |_| true));
+        }
+    }
+    println!(
+        "stack ({} images): linear map {tl:8.2} ms  pixel iteration {tp:8.2} ms  ratio {:.3}; (sweeps, passes) {sweeps:?}",
+        stack.len(),
+        tl / tp
+    );
+    for v in [&mut lin_pix, &mut lin_deep, &mut pix_deep, &mut one_deep] {
+        v.sort_by(f64::total_cmp);
+    }
+    summary("linear vs pixel iteration", &lin_pix);
+    summary("linear vs deep (3 images)", &lin_deep);
+    summary("pixel iteration vs deep (3 images)", &pix_deep);
+    summary("first pass vs deep (3 images)", &one_deep);
+    if std::env::args().any(|a| a == "--stack-only") {
+        return Ok(());
+    }
+    let (mut t1, mut tc) = (0.0, 0.0);
+    let mut refits = Vec::new();
+    for img in &stack {
+        let t = Instant::now();
+        refit(img, &one, &tails)?;
         t1 += t.elapsed().as_secs_f64() * 1e3;
         let t = Instant::now();
-        let (_, r) = refit_dots_report(
-            img,
-            Some(&mask),
-            &det.seeds,
-            &cfg,
-            &noise,
-            &ref_fits,
-            Some(&tails),
-        )?;
+        let (_, r) = refit(img, &cfg, &tails)?;
         tc += t.elapsed().as_secs_f64() * 1e3;
         if refits.is_empty() {
             println!("stack image 1: {r:?}");

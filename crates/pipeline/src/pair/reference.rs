@@ -423,12 +423,15 @@ impl ReferenceContext {
             .collect();
         let at =
             median2(shifts.iter().map(|s| s.map(|v| v.unwrap_or(0.0)))).map(|v| v.unwrap_or(0.0));
-        let tails = bostrack_fit::NeighbourTails::new(
+        // and the neighbour iteration linearised there: after its first pass each image's
+        // joint solution comes from that map, without refitting dots
+        let tails = bostrack_fit::NeighbourTails::coupled(
             &super::frame::moved(&self.fits, at),
             &self.detection.seeds,
             &plan.fit,
-            self.size.0,
-            self.size.1,
+            &stack[0],
+            self.mask.as_ref(),
+            &self.noise,
         );
         let per_image = stack
             .par_iter()
