@@ -90,14 +90,18 @@ fn main() {
     };
     let names = [
         "measured",
-        "truth (truncation only)",
+        "measured, u_noise",
+        "truth (truncation), u_noise",
         "truth+N(u)",
-        "measured - truth",
-        "truth+N(u) - truth",
+        "measured - truth, u_noise",
+        "truth+N(u) - truth, u_noise",
     ];
-    let mut pooled = [Tally::default(); 5];
-    let mut per_campaign: Vec<[f64; 5]> = Vec::new();
+    let mut pooled = [Tally::default(); 6];
+    let mut per_campaign: Vec<[f64; 6]> = Vec::new();
     let mut trunc_over_u = (0.0, 0usize, 0.0f64);
+    // the truncation estimate: rms of δ (measured data) and of |δ| − |error| (exact data), in
+    // units of u_noise
+    let (mut delta2, mut delta_miss2) = (0.0, 0.0);
     // displacement errors in units of the pooled u and of the unpooled u_d
     let (mut dz2_pool, mut dz2_own, mut dn) = (0.0, 0.0, 0usize);
     // per lattice site: sum of the gradient error (kg/m⁴), count; and the nodes of the last
@@ -182,23 +186,38 @@ fn main() {
             .filter(|r| r.status == NodeStatus::Solved)
             .map(|r| r.u_rho.unwrap())
             .collect();
-        median_u.push(bostrack_core::median(&mut us) / peak);
-        let mut t = [Tally::default(); 5];
+        let mut un: Vec<f64> = fields[0]
+            .nodes
+            .iter()
+            .filter(|r| r.status == NodeStatus::Solved)
+            .map(|r| (r.u_rho.unwrap().powi(2) - r.u_truncation.unwrap().powi(2)).sqrt())
+            .collect();
+        median_u.push([
+            bostrack_core::median(&mut us) / peak,
+            bostrack_core::median(&mut un) / peak,
+        ]);
+        let mut t = [Tally::default(); 6];
         for k in 0..nodes.len() {
             if fields[0].nodes[k].status != NodeStatus::Solved {
                 continue;
             }
             let tr = truth_rho(pos_px[k]);
-            let u = fields[0].nodes[k].u_rho.unwrap();
+            let r = &fields[0].nodes[k];
+            let (ut, dm) = (r.u_rho.unwrap(), r.u_truncation.unwrap());
+            // the noise's u: the same for every field of these nodes and weights
+            let u = (ut * ut - dm * dm).sqrt();
             let e: Vec<f64> = fields
                 .iter()
                 .map(|f| f.nodes[k].rho.unwrap() - tr)
                 .collect();
-            t[0].add(e[0], u);
-            t[1].add(e[1], u);
-            t[2].add(e[2], u);
-            t[3].add(e[0] - e[1], u);
-            t[4].add(e[2] - e[1], u);
+            t[0].add(e[0], ut);
+            t[1].add(e[0], u);
+            t[2].add(e[1], u);
+            t[3].add(e[2], fields[2].nodes[k].u_rho.unwrap());
+            t[4].add(e[0] - e[1], u);
+            t[5].add(e[2] - e[1], u);
+            delta2 += (dm / u).powi(2);
+            delta_miss2 += ((fields[1].nodes[k].u_truncation.unwrap() - e[1].abs()) / u).powi(2);
             trunc_over_u.0 += (e[1] / u).powi(2);
             trunc_over_u.1 += 1;
             trunc_over_u.2 = trunc_over_u.2.max((e[1] / u).abs());
@@ -222,7 +241,9 @@ fn main() {
             last_u = fields[0]
                 .nodes
                 .iter()
-                .map(|r| r.u_rho.unwrap_or(0.0))
+                .map(|r| {
+                    (r.u_rho.unwrap_or(0.0).powi(2) - r.u_truncation.unwrap_or(0.0).powi(2)).sqrt()
+                })
                 .collect();
             last_nodes = nodes;
         }
@@ -240,20 +261,24 @@ fn main() {
             / (c - 1.0))
             .sqrt();
         println!(
-            "  {name:<24} {:.3} / {:.3} ({:.3})",
+            "  {name:<30} {:.3} / {:.3} ({:.3})",
             pooled[m].coverage(),
             pooled[m].z(),
             sd / c.sqrt()
         );
     }
     println!(
-        "median u_rho / peak: {:.4} %",
-        100.0 * median_u.iter().sum::<f64>() / c
+        "median u_rho / peak: {:.4} % (u_noise: {:.4} %)",
+        100.0 * median_u.iter().map(|m| m[0]).sum::<f64>() / c,
+        100.0 * median_u.iter().map(|m| m[1]).sum::<f64>() / c
     );
+    let nt = trunc_over_u.1 as f64;
     println!(
-        "truncation error / u_rho: rms {:.3}, max {:.3}",
-        (trunc_over_u.0 / trunc_over_u.1 as f64).sqrt(),
-        trunc_over_u.2
+        "truncation error / u_noise: rms {:.3}, max {:.3}; its estimate |delta| (in u_rho) from the measured data: rms {:.3} u_noise; from the exact data: rms of |delta| - |truncation error| {:.3} u_noise",
+        (trunc_over_u.0 / nt).sqrt(),
+        trunc_over_u.2,
+        (delta2 / nt).sqrt(),
+        (delta_miss2 / nt).sqrt()
     );
     println!(
         "displacement rms z: pooled u {:.3}, own u_d {:.3}",
@@ -293,7 +318,7 @@ fn main() {
         }
     }
     println!(
-        "mean gradient error over the campaigns, integrated (includes 1/sqrt({campaigns}) of the noise): rms {:.3} u_rho, max {:.3} u_rho; noise alone would give about {:.3}",
+        "mean gradient error over the campaigns, integrated (includes 1/sqrt({campaigns}) of the noise): rms {:.3} u_noise, max {:.3} u_noise; noise alone would give about {:.3}",
         (b2 / n as f64).sqrt(),
         bmax,
         1.0 / c.sqrt()
