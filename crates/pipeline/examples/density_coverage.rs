@@ -7,27 +7,33 @@
 //!
 //! Per campaign (own seed: reference, stack and frame), on the nodes the pipeline integrates
 //! (`frame_nodes`: pooled u, outer ring):
-//! - `measured`: the pipeline's field, `e = ρ − ρ_true`, against u_ρ;
+//! - `measured`: the pipeline's field, `e = ρ − ρ_true`, against u_ρ (the noise's exact u and
+//!   the truncation estimate |δ| in quadrature) and against the noise's part alone, u_noise;
 //! - `truth`: the exact gradient at each node's (fitted) reference position, no noise: the
 //!   discretisation (truncation) error alone, deterministic;
-//! - `truth+N(u)`: the exact gradient plus Gaussian noise of exactly the nodes' u: what the
-//!   estimator's covariance promises, with the truncation error included;
+//! - `truth+N(u)`: the exact gradient plus Gaussian noise of exactly the nodes' u, against its
+//!   own u_ρ: what the estimator promises, with the truncation error included;
 //! - `measured − truth`: the measured error less the truncation error (the part the noise
 //!   makes);
 //! - the displacement errors standardised by the pooled u (per axis), and their mean over the
 //!   campaigns per lattice site (a coherent bias), integrated alone.
 //!
-//! Coverage is `|e| ≤ u_ρ` over the solved nodes; the standard error is the spread between
+//! Coverage is `|e| ≤ u` over the solved nodes; the standard error is the spread between
 //! campaigns over √campaigns (neighbouring nodes are correlated, campaigns are independent).
 //!
-//! With 36 campaigns (coverage ± standard error / RMS z): measured 0.652 ± 0.008 / 1.080;
-//! truth 0.966 / 0.336 (the truncation error, RMS 0.34 u_ρ, at most 1.95 u_ρ); truth+N(u)
-//! 0.664 ± 0.006 / 1.049; measured − truth 0.670 ± 0.009 / 1.033; truth+N(u) − truth
-//! 0.687 ± 0.007 / 0.991 (the exact u_ρ checked). Pooled u: displacement RMS z 1.002 (own
-//! u_d: 1.131, Student's t₉). The mean gradient error over the campaigns, integrated alone, is
-//! 0.26 u_ρ RMS where the noise alone would leave 0.17: a coherent fit bias of about 0.2 u_ρ,
-//! the radial displacement error changing sign near r = 60 px (+1e-3 to +2e-3 px inside,
-//! −1e-3 to −3e-3 px outside).
+//! With 36 campaigns (coverage ± standard error / RMS z): measured 0.675 ± 0.010 / 1.022
+//! (against u_noise: 0.666 / 1.043); truth 1.000 / 0.103 (the truncation error of the
+//! fourth-order stencils, RMS 0.10 u_noise, at most 0.75; |δ| from the exact gradients misses
+//! it by 0.035 u_noise RMS, from the measured ones |δ| has RMS 0.20 u_noise); truth+N(u)
+//! 0.694 ± 0.007 / 0.978 (u_ρ slightly conservative: δ from noisy data holds some noise);
+//! measured − truth 0.668 ± 0.010 / 1.039; truth+N(u) − truth 0.688 ± 0.007 / 0.990 (the exact
+//! u_noise checked). Median u_ρ 0.171 % of the peak (u_noise 0.168 %). Pooled u: displacement
+//! RMS z 1.002 (own u_d: 1.131, Student's t₉). The mean gradient error over the campaigns,
+//! integrated alone, is 0.27 u_noise RMS where the noise alone would leave 0.17: a coherent fit
+//! bias of about 0.2 u_noise RMS (expected coverage loss `0.242 b²` ≈ 0.01), the radial
+//! displacement error −0.8e-3 to −2.7e-3 px at r = 72 to 132 px. The same campaigns with the
+//! third-order stencils and no truncation term (commit 8f45cc4): measured 0.652 ± 0.008 /
+//! 1.080, truncation RMS 0.34 u_ρ, at most 1.95, median u_ρ 0.165 %.
 
 use bostrack_density::{IntegrationConfig, Node, NodeStatus, integrate};
 use bostrack_pipeline::{Plan, frame_nodes};
