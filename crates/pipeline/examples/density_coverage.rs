@@ -32,7 +32,8 @@
 //! integrated alone, is 0.267 u_noise RMS where the noise alone would leave 0.173 (the noise
 //! part's RMS z / √36): a coherent fit bias of 0.204 u_noise RMS, expected coverage loss
 //! `0.242 b²` = 0.010 (`P(|b + z| ≤ 1) ≈ 0.683 − 0.242 b²`), the radial
-//! displacement error −0.8e-3 to −2.7e-3 px at r = 72 to 132 px. The same campaigns with the
+//! displacement error −1.4e-3 to −2.7e-3 px (± 0.5e-3) at r = 96 to 132 px, +1.8e-3 ± 0.6e-3
+//! at 48 to 60 px, −3.4e-4 ± 1e-4 beyond 132 px. The same campaigns with the
 //! third-order stencils and no truncation term (commit 8f45cc4): measured 0.652 ± 0.008 /
 //! 1.080, truncation RMS 0.34 u_ρ, at most 1.95, median u_ρ 0.165 %. Poisson (`-- 36 poisson`):
 //! measured 0.668 ± 0.010 / 1.033 (against u_noise 0.651); the trapezoid's truncation RMS 0.33
@@ -125,7 +126,7 @@ fn main() {
     let mut site_err: HashMap<[i32; 2], ([f64; 2], usize)> = HashMap::new();
     let mut last_nodes: Vec<Node> = Vec::new();
     let mut last_u: Vec<f64> = Vec::new();
-    let mut radial = [(0.0f64, 0usize); 12];
+    let mut radial = [(0.0f64, 0.0f64, 0usize); 12];
     let normal = Normal::new(0.0, 1.0).unwrap();
     let mut median_u = Vec::new();
     for seed in 0..campaigns {
@@ -168,8 +169,10 @@ fn main() {
                     -(n.gradient[0] - truth_g[k][0]) / grad_per_px,
                     -(n.gradient[1] - truth_g[k][1]) / grad_per_px,
                 ];
-                radial[bin].0 += (ed[0] * x + ed[1] * y) / r;
-                radial[bin].1 += 1;
+                let e = (ed[0] * x + ed[1] * y) / r;
+                radial[bin].0 += e;
+                radial[bin].1 += e * e;
+                radial[bin].2 += 1;
             }
         }
         let mut rng = StdRng::seed_from_u64(7 + seed);
@@ -301,14 +304,17 @@ fn main() {
         (dz2_pool / dn as f64).sqrt(),
         (dz2_own / dn as f64).sqrt()
     );
-    println!("mean radial displacement error (px) by radius (12 px bins):");
-    for (b, (s, n)) in radial.iter().enumerate() {
-        if *n > 0 {
+    println!(
+        "mean radial displacement error (px) by radius (12 px bins), ± its standard error (dots taken as independent), dots:"
+    );
+    for (b, &(s, s2, n)) in radial.iter().enumerate() {
+        if n > 1 {
+            let m = s / n as f64;
+            let se = ((s2 - n as f64 * m * m) / (n - 1) as f64 / n as f64).sqrt();
             println!(
-                "  r {:>3}-{:<3} {:+.2e} ({n})",
+                "  r {:>3}-{:<3} {m:+.2e} ± {se:.1e} ({n})",
                 b * 12,
-                b * 12 + 12,
-                s / *n as f64
+                b * 12 + 12
             );
         }
     }
