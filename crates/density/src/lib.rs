@@ -9,8 +9,9 @@
 //!
 //! - **`Wls`** (default): the generalised least-squares solution of the per-dot observation
 //!   equations `(∂ρ/∂t)_p = ∇ρ_p · (∂X/∂t)_p` along both lattice directions `t`, each derivative
-//!   taken by the same one-sided third-order stencil (BDF3, `[11, −18, 9, −2]/6`) applied to the
-//!   node densities and to the node positions, weighted by the inverse covariance of each dot's
+//!   taken by the same one-sided fourth-order stencil (BDF4, `[25, −48, 36, −16, 3]/12`; lower
+//!   orders where holes or the edge leave no room) applied to the node densities and to the
+//!   node positions, weighted by the inverse covariance of each dot's
 //!   two observations (from the per-axis gradient uncertainties). Every dot's gradient enters once,
 //!   so the observations are independent and the covariance of the solution is *exactly* the
 //!   inverse of the normal matrix `A = Gᵀ W G`; its diagonal comes from the sparse Cholesky
@@ -26,15 +27,18 @@
 //! Why one-sided stencils for WLS: a symmetric (central) node stencil does not see the
 //! alternating mode `(−1)^t` (odd–even decoupling); the trapezoid edge form sees it but couples
 //! neighbouring observations, whose exact covariance is a sandwich that selected inversion
-//! cannot give. A one-sided stencil of third order has neither problem; its truncation error is
-//! `h³ ρ''''/4` (the trapezoid's is `h² ρ'''/12`), a deterministic error that the per-node
-//! uncertainty (the noise's covariance) does not include: on a Gaussian bump 5 lattice steps
-//! wide, RMS 0.34 u_ρ. A fourth-order stencil removes it but makes u_ρ 1.8× larger.
-//! docs/theory.md has the derivation and the measurements.
+//! cannot give. A one-sided stencil has neither problem; its truncation error (BDF4:
+//! `h⁴ρ⁽⁵⁾/5`; the trapezoid's `h³ρ'''/12`) is deterministic and not in the noise's covariance,
+//! so u_ρ also holds an estimate of it, from the data: each row's truncation estimated by the
+//! difference of its stencil and the next order's (`∓∇⁵/5` on the solution; the trapezoid:
+//! `−Δ³/12`), propagated through the same solve, `δ = A⁻¹ Gᵀ W τ̂` (one more solve with the
+//! factor), and added in quadrature: `u_ρ² = u_ref² + diag(Cov) + δ²`
+//! ([`NodeResult::u_truncation`] is `|δ|`). docs/theory.md has the derivation and the
+//! measurements.
 //!
 //! The reference density's own uncertainty is an offset common to every node: since every
 //! stencil sums to zero, the solution with Dirichlet value `ρ_ref` is `ρ_ref` plus the solution
-//! with zero, and `u_ρ² = u_ref² + diag(Cov)`.
+//! with zero (its part of u_ρ is `u_ref`).
 //!
 //! Islands (parts of the lattice not joined by any stencil or edge) are solved together but each
 //! needs a Dirichlet node: one without gets [`IslandStatus::NoReference`] and its nodes no
@@ -171,8 +175,12 @@ impl NodeStatus {
 pub struct NodeResult {
     /// Density; `None` when its island has no Dirichlet node.
     pub rho: Option<f64>,
-    /// 1σ uncertainty of `rho`; `None` when not requested or no density.
+    /// 1σ uncertainty of `rho`: the noise's (exact) and the estimated discretisation error
+    /// `u_truncation` in quadrature; `None` when not requested or no density.
     pub u_rho: Option<f64>,
+    /// The estimated discretisation (truncation) error of `rho`, `|δ|` (included in `u_rho`);
+    /// `None` when not requested or no density, 0 on the Dirichlet nodes.
+    pub u_truncation: Option<f64>,
     /// Island (connected part of the lattice) of the node, from 0 in order of first node.
     pub island: usize,
     pub status: NodeStatus,
@@ -266,6 +274,7 @@ pub fn integrate(nodes: &[Node], cfg: &IntegrationConfig) -> Result<DensityField
                 NodeResult {
                     rho: None,
                     u_rho: None,
+                    u_truncation: None,
                     island,
                     status: NodeStatus::NoReference,
                 }
@@ -273,6 +282,7 @@ pub fn integrate(nodes: &[Node], cfg: &IntegrationConfig) -> Result<DensityField
                 NodeResult {
                     rho: Some(cfg.reference_density),
                     u_rho: cfg.uncertainty.then_some(cfg.reference_uncertainty),
+                    u_truncation: cfg.uncertainty.then_some(0.0),
                     island,
                     status: NodeStatus::Reference,
                 }
@@ -280,9 +290,14 @@ pub fn integrate(nodes: &[Node], cfg: &IntegrationConfig) -> Result<DensityField
                 let k = unknown[p];
                 NodeResult {
                     rho: Some(cfg.reference_density + sol.x[k]),
-                    u_rho: sol.variance.as_ref().map(|v| {
-                        (cfg.reference_uncertainty * cfg.reference_uncertainty + v[k]).sqrt()
-                    }),
+                    u_rho: sol
+                        .variance
+                        .as_ref()
+                        .zip(sol.truncation.as_ref())
+                        .map(|(v, t)| {
+                            (cfg.reference_uncertainty.powi(2) + v[k] + t[k] * t[k]).sqrt()
+                        }),
+                    u_truncation: sol.truncation.as_ref().map(|t| t[k].abs()),
                     island,
                     status: NodeStatus::Solved,
                 }

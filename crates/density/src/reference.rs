@@ -3,14 +3,14 @@
 //! For the checks of the sparse path and the benchmark's ratio only.
 
 use crate::lattice::{Lattice, islands};
-use crate::solve::normal_equations;
+use crate::solve::{normal_equations, project, row_truncation};
 use crate::system::System;
 use crate::{DensityError, IntegrationConfig, IslandStatus, Method, Node};
 use faer::linalg::solvers::DenseSolveCore;
 use faer::{Mat, Side};
 
-/// Per node (input order) the 1σ uncertainty of ρ as [`crate::integrate`] defines it, from a
-/// dense inverse of the normal matrix (`None` where [`crate::integrate`] gives no density).
+/// Per node (input order) the 1σ uncertainty of ρ as [`crate::integrate`] defines it (the
+/// truncation estimate δ included), from a dense inverse of the normal matrix (`None` where [`crate::integrate`] gives no density).
 /// Memory `8 N²` bytes or more: for small lattices only (checks, benchmarks).
 pub fn dense_uncertainty(
     nodes: &[Node],
@@ -27,7 +27,7 @@ pub fn dense_uncertainty(
             n += 1;
         }
     }
-    let (trip, _, _) = normal_equations(&sys, &unknown);
+    let (trip, rhs, _) = normal_equations(&sys, &unknown);
     let mut a = Mat::<f64>::zeros(n, n);
     for t in &trip {
         a[(t.row, t.col)] += t.val;
@@ -70,6 +70,19 @@ pub fn dense_uncertainty(
                 .collect()
         }
     };
+    // the estimated truncation error's effect, δ = A⁻¹ Gᵀ W τ̂(x), x = A⁻¹ rhs
+    let apply = |v: &[f64]| -> Vec<f64> {
+        (0..n)
+            .map(|i| (0..n).map(|j| inv[(i, j)] * v[j]).sum())
+            .collect()
+    };
+    let x = apply(&rhs);
+    let delta = apply(&project(
+        &sys,
+        &unknown,
+        n,
+        &row_truncation(&sys, &unknown, &x, nodes),
+    ));
     let u0 = cfg.reference_uncertainty;
     Ok(nodes
         .iter()
@@ -80,7 +93,7 @@ pub fn dense_uncertainty(
             } else if node.dirichlet {
                 Some(u0)
             } else {
-                Some((u0 * u0 + var[unknown[p]]).sqrt())
+                Some((u0 * u0 + var[unknown[p]] + delta[unknown[p]].powi(2)).sqrt())
             }
         })
         .collect())

@@ -23,6 +23,9 @@ pub(crate) struct Solution {
     pub x: Vec<f64>,
     /// Variance of each unknown (without the reference density's).
     pub variance: Option<Vec<f64>>,
+    /// The estimated effect of the stencils' truncation error on each unknown, `δ` (with the
+    /// variance).
+    pub truncation: Option<Vec<f64>>,
     pub factor_nnz: usize,
     pub residual_rms: Option<f64>,
 }
@@ -236,6 +239,7 @@ pub(crate) fn solve(
         return Ok(Solution {
             x: Vec::new(),
             variance: cfg.uncertainty.then(Vec::new),
+            truncation: cfg.uncertainty.then(Vec::new),
             factor_nnz: 0,
             residual_rms: None,
         });
@@ -246,6 +250,14 @@ pub(crate) fn solve(
     factor.solve(&mut b);
     let x: Vec<f64> = (0..n).map(|i| b[(i, 0)]).collect();
     let residual_rms = residual_rms(sys, unknown, &x);
+    // the truncation error's effect on ρ, estimated from the solution: δ = A⁻¹ Gᵀ W τ̂
+    let truncation = cfg.uncertainty.then(|| {
+        let r = project(sys, unknown, n, &row_truncation(sys, unknown, &x, nodes));
+        let mut d = Mat::from_fn(n, 1, |i, _| r[i]);
+        factor.solve(&mut d);
+        (0..n).map(|i| d[(i, 0)]).collect()
+    });
+
     let variance = if !cfg.uncertainty {
         None
     } else {
@@ -257,9 +269,63 @@ pub(crate) fn solve(
     Ok(Solution {
         x,
         variance,
+        truncation,
         factor_nnz: factor.values.len(),
         residual_rms,
     })
+}
+
+/// The estimated truncation error of every row (the groups' rows in order; 0 where a row has
+/// no estimate): `τ̂ = Σ d_k (ρ̂_k − g · X_k)` with `ρ̂` the solution (ρ − ρ_ref: 0 on the
+/// Dirichlet nodes) and `g` the row's dot's gradient, so that `G ρ ≈ obs + τ̂`.
+pub(crate) fn row_truncation(
+    sys: &System,
+    unknown: &[usize],
+    x: &[f64],
+    nodes: &[Node],
+) -> Vec<f64> {
+    let mut out = Vec::new();
+    for g in &sys.groups {
+        let gp = nodes[g.dot].gradient;
+        for terms in &g.truncation {
+            out.push(
+                terms
+                    .iter()
+                    .map(|&(q, d)| {
+                        let rho = if unknown[q] == usize::MAX {
+                            0.0
+                        } else {
+                            x[unknown[q]]
+                        };
+                        let xq = nodes[q].position;
+                        d * (rho - gp[0] * xq[0] - gp[1] * xq[1])
+                    })
+                    .sum(),
+            );
+        }
+    }
+    out
+}
+
+/// `Gᵀ W t` over the unknowns for one value `t` per row (the groups' rows in order): the
+/// right-hand side whose solution is the effect of `t` on ρ.
+pub(crate) fn project(sys: &System, unknown: &[usize], n: usize, t: &[f64]) -> Vec<f64> {
+    let mut out = vec![0.0; n];
+    let mut at = 0;
+    for g in &sys.groups {
+        let m = g.rows.len();
+        let tg = &t[at..at + m];
+        at += m;
+        for a in 0..m {
+            let wt: f64 = (0..m).map(|c| g.weight[a * m + c] * tg[c]).sum();
+            for &(p, cp) in &g.rows[a] {
+                if unknown[p] != usize::MAX {
+                    out[unknown[p]] += cp * wt;
+                }
+            }
+        }
+    }
+    out
 }
 
 /// RMS of the whitened residuals `W^{1/2} (G x − obs)` over all rows.

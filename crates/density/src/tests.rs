@@ -111,6 +111,7 @@ fn linear_fields_are_exact() {
         for (n, r) in one.iter().zip(&f1.nodes) {
             let truth = 1.2 + 40.0 * (n.position[0] - p0[0]) - 25.0 * (n.position[1] - p0[1]);
             assert!((r.rho.unwrap() - truth).abs() < 1e-12, "{method:?}");
+            assert!(r.u_truncation.unwrap() < 1e-12, "{method:?}");
         }
         assert_eq!(f.islands.len(), 1);
     }
@@ -142,8 +143,41 @@ fn gaussian_bump_without_noise() {
     }
 }
 
+/// The truncation estimate |δ| (in u_ρ) on a noise-free bump 5 lattice steps wide, where the
+/// discretisation is the only error: the next order's stencil (WLS) and the trapezoid's
+/// `h³ρ'''/12` (Poisson) account for most of it; u_ρ holds it in quadrature.
+#[test]
+fn truncation_estimate_tracks_the_discretisation_error() {
+    let h = 1e-3;
+    let (rho, grad) = bump(-0.05, 5.0 * h, [0.012, 0.030]);
+    let nodes = lattice(50, 50, h, &[[20, 20], [20, 21], [33, 10]], grad, |_| {
+        [1.0, 1.0]
+    });
+    for method in [Method::Wls, Method::Poisson] {
+        let f = integrate(&nodes, &cfg(method)).unwrap();
+        let (mut b2, mut r2) = (0.0, 0.0);
+        for (n, r) in nodes.iter().zip(&f.nodes) {
+            let b = r.rho.unwrap() - rho(n.position);
+            let t = r.u_truncation.unwrap();
+            b2 += b * b;
+            r2 += (b.abs() - t).powi(2);
+            let u = r.u_rho.unwrap();
+            assert!(
+                u >= t && u >= cfg(method).reference_uncertainty,
+                "{method:?}"
+            );
+        }
+        let (b, miss) = (
+            (b2 / nodes.len() as f64).sqrt(),
+            (r2 / nodes.len() as f64).sqrt(),
+        );
+        eprintln!("{method:?}: rms error {b:.3e}, rms of |error| - |delta| {miss:.3e}");
+        assert!(b > 0.0 && miss < 0.5 * b, "{method:?}: {miss:e} of {b:e}");
+    }
+}
+
 /// Monte Carlo: the spread of ρ over 400 noise draws matches the exact u_ρ (without the
-/// reference density's part, which is not drawn). The ratio of variances averaged over the
+/// reference density's part, which is not drawn, and without the truncation estimate). The ratio of variances averaged over the
 /// nodes has a relative standard error of about sqrt(2/400) = 7 % (less, averaged over
 /// partly independent nodes); tolerance 10 %.
 #[test]
@@ -194,7 +228,9 @@ fn monte_carlo_matches_the_exact_uncertainty() {
             }
             let mean = s1[k] / draws as f64;
             let var = (s2[k] - draws as f64 * mean * mean) / (draws - 1) as f64;
-            ratio += var / exact.nodes[k].u_rho.unwrap().powi(2);
+            // the noise's part of u_ρ (without the truncation estimate, which is not noise)
+            let r = &exact.nodes[k];
+            ratio += var / (r.u_rho.unwrap().powi(2) - r.u_truncation.unwrap().powi(2));
             count += 1;
         }
         let ratio = ratio / count as f64;
