@@ -101,51 +101,62 @@ impl Coupling {
     ) -> Coupling {
         let blurred = sampling.image_model() != Sampling::Point;
         let dp = dot_params(kind);
-        let mut start = Vec::with_capacity(links.len() + 1);
-        let (mut nb, mut m) = (Vec::new(), Vec::new());
-        let mut scale = Vec::with_capacity(links.len());
-        let mut theta = Vec::with_capacity(links.len());
-        start.push(0);
         // each dot's dot parameters' standard deviations
         let sd: Vec<[f64; 7]> = links
             .iter()
             .map(|l| l.as_ref().map_or([0.0; 7], |l| l.0))
             .collect();
-        for (f, l) in base.iter().zip(links) {
-            let mut sc = [0.0; 8];
-            match l {
-                Some((s, ls)) => {
-                    theta.push(Some(rep(&f.params, blurred)));
-                    for (o, &q) in dp.iter().enumerate() {
-                        sc[o] = s[q];
-                    }
-                    for (j, mj) in ls {
-                        // the largest move of the dot (in its standard deviations) for a move
-                        // of one standard deviation in one of the neighbour's parameters
-                        // (a neighbour whose own map failed has no known scale: kept)
-                        let mut big = 0.0f64;
-                        for (c, col) in mj.iter().enumerate().take(dp.len()) {
-                            for &q in &dp {
-                                big = big.max((col[q] * sd[j][dp[c]] / s[q]).abs());
-                            }
-                        }
-                        let known = dp.iter().all(|&q| sd[j][q] > 0.0 && sd[j][q].is_finite());
-                        if known && big < MIN_LINK {
-                            continue;
-                        }
-                        nb.push(j as u32);
-                        let mut m32 = [[0.0f32; 8]; NB];
-                        for (c32, c) in m32.iter_mut().zip(&mj) {
-                            for (o, &q) in dp.iter().enumerate() {
-                                c32[o] = c[q] as f32;
-                            }
-                        }
-                        m.push(m32);
-                    }
+        type Kept = (Option<Theta>, [f64; 8], Vec<(u32, [[f32; 8]; NB])>);
+        let per_dot: Vec<Kept> = base
+            .par_iter()
+            .zip(links)
+            .map(|(f, l)| {
+                let mut sc = [0.0; 8];
+                let Some((s, ls)) = l else {
+                    return (None, sc, Vec::new());
+                };
+                for (o, &q) in dp.iter().enumerate() {
+                    sc[o] = s[q];
                 }
-                None => theta.push(None),
-            }
+                let mut kept = Vec::with_capacity(ls.len());
+                for (j, mj) in ls {
+                    // the largest move of the dot (in its standard deviations) for a move of
+                    // one standard deviation in one of the neighbour's parameters (a neighbour
+                    // whose own map failed has no known scale: kept)
+                    let mut big = 0.0f64;
+                    for (c, col) in mj.iter().enumerate().take(dp.len()) {
+                        for &q in &dp {
+                            big = big.max((col[q] * sd[j][dp[c]] / s[q]).abs());
+                        }
+                    }
+                    let known = dp.iter().all(|&q| sd[j][q] > 0.0 && sd[j][q].is_finite());
+                    if known && big < MIN_LINK {
+                        continue;
+                    }
+                    let mut m32 = [[0.0f32; 8]; NB];
+                    for (c32, c) in m32.iter_mut().zip(&mj) {
+                        for (o, &q) in dp.iter().enumerate() {
+                            c32[o] = c[q] as f32;
+                        }
+                    }
+                    kept.push((j as u32, m32));
+                }
+                (Some(rep(&f.params, blurred)), sc, kept)
+            })
+            .collect();
+        let total = per_dot.iter().map(|p| p.2.len()).sum();
+        let mut start = Vec::with_capacity(per_dot.len() + 1);
+        let (mut nb, mut m) = (Vec::with_capacity(total), Vec::with_capacity(total));
+        let mut scale = Vec::with_capacity(per_dot.len());
+        let mut theta = Vec::with_capacity(per_dot.len());
+        start.push(0);
+        for (t, sc, kept) in per_dot {
+            theta.push(t);
             scale.push(sc);
+            for (j, mj) in kept {
+                nb.push(j);
+                m.push(mj);
+            }
             start.push(nb.len());
         }
         Coupling {
@@ -198,6 +209,8 @@ impl Coupling {
             .collect();
         let mut delta = own.clone();
         let mut changed = live.clone();
+        // (one buffer for every half-sweep's updates: a fresh one each time cost its pages)
+        let mut updates: Vec<([f64; 8], bool)> = Vec::new();
         let mut sweeps = 0;
         loop {
             if sweeps >= MAX_SWEEPS {
@@ -216,7 +229,7 @@ impl Coupling {
                                 .any(|&j| changed[j as usize])
                     })
                     .collect();
-                let updates: Vec<([f64; 8], bool)> = active
+                active
                     .par_iter()
                     .with_min_len(256)
                     .map(|&i| {
@@ -236,13 +249,13 @@ impl Coupling {
                             .fold(0.0f64, f64::max);
                         (v, moved > SETTLED)
                     })
-                    .collect();
+                    .collect_into_vec(&mut updates);
                 for i in 0..n {
                     if self.red[i] == colour {
                         changed[i] = false;
                     }
                 }
-                for (&i, (v, c)) in active.iter().zip(updates) {
+                for (&i, &(v, c)) in active.iter().zip(&updates) {
                     if v.iter().any(|x| !x.is_finite()) {
                         return None;
                     }

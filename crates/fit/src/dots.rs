@@ -93,7 +93,7 @@ pub fn fit_dots_report(
                 || Fitter::new(cfg),
                 |f, s| {
                     let fit = fit_seed(f, img, mask, s, None, noise);
-                    Item::from_fitter(fit, f)
+                    Item::from_fitter(fit, f, false)
                 },
             )
             .collect();
@@ -125,6 +125,7 @@ pub fn fit_dots_report(
         PassKind {
             intermediate: true,
             warm: false,
+            looked_at: false,
         },
         None,
         &hood,
@@ -247,6 +248,7 @@ pub fn refit_dots_report(
                 // with a coupling map the prior is the same scene's fit, one bound away, whose
                 // weights differ by far less than the check looks for)
                 warm: coupling.is_some(),
+                looked_at: coupling.is_none(),
             },
             tails,
             &hood,
@@ -255,9 +257,10 @@ pub fn refit_dots_report(
         if let Some(c) = coupling {
             // the rest of the iteration on the linear map: no pixel work
             let fits: Vec<DotFit> = first.iter().map(|i| i.fit).collect();
+            // (as `Plausible::model` admits a fit, without building its model)
             let admitted: Vec<bool> = fits
                 .iter()
-                .map(|f| hood.gate.model(f, cfg.sampling).is_some())
+                .map(|f| hood.gate.admits(f) && f.params.is_valid() && f.params.amplitude > 0.0)
                 .collect();
             if let Some(solved) = c.solve(&fits, &admitted) {
                 let mut items = first;
@@ -287,7 +290,7 @@ pub fn refit_dots_report(
             |f, (s, p)| {
                 let hint = p.status.is_ok().then_some(&p.params);
                 let fit = fit_seed(f, img, mask, s, hint, noise);
-                Item::from_fitter(fit, f)
+                Item::from_fitter(fit, f, false)
             },
         )
         .collect();
@@ -349,14 +352,15 @@ struct Item {
 }
 
 impl Item {
-    fn from_fitter(fit: DotFit, f: &Fitter) -> Item {
+    /// `looked_at`: keep the Fisher matrix for later looks.
+    fn from_fitter(fit: DotFit, f: &Fitter, looked_at: bool) -> Item {
         let lsg = f.config().estimator == Estimator::Lsg && fit.status != FitStatus::NotFitted;
         Item {
             fit,
             chi2: if lsg { f.last.chi2 } else { f64::NAN },
             dof: if lsg { f.last.dof } else { 0 },
             moved: if lsg { f.last.moved } else { f64::INFINITY },
-            fisher: if lsg {
+            fisher: if lsg && looked_at {
                 f.last.point_fisher.map(Box::new)
             } else {
                 None
@@ -469,6 +473,11 @@ fn pull_of(moved: f64, share: f64) -> f64 {
 struct PassKind {
     intermediate: bool,
     warm: bool,
+    /// Later passes look at these records (`predicted_move`): each keeps the neighbours it saw
+    /// and its Fisher matrix. Without (the first pass of a coupled stack image, which the linear
+    /// map finishes) nothing per dot is kept beside the fit: on the real stack those buffers
+    /// were 12 MB per image, allocated, freed and their pages cleared again for every image.
+    looked_at: bool,
 }
 
 /// The seed's colour on the lattice's checkerboard (`(i + j)` even) for the red-black passes:
@@ -611,6 +620,7 @@ impl<'a> Iteration<'a> {
         let kind = PassKind {
             intermediate: false,
             warm: false,
+            looked_at: true,
         };
         let colour: Vec<bool> = self.seeds.iter().map(is_red).collect();
         let other: Vec<bool> = colour.iter().map(|c| !c).collect();
@@ -740,6 +750,7 @@ impl<'a> Iteration<'a> {
                 PassKind {
                     intermediate: false,
                     warm: true,
+                    looked_at: true,
                 },
                 None,
                 canvas_buf,
@@ -978,7 +989,7 @@ impl<'a> Iteration<'a> {
                     let win = Window::new(f.ws.wx, f.ws.wy, f.ws.w, f.ws.h);
                     // (an intermediate pass is refitted in full: no later look reads what it saw)
                     raw.clear();
-                    if !kind.intermediate {
+                    if kind.looked_at {
                         raw.extend_from_slice(&f.ws.data[..f.ws.len()]);
                     }
                     // (the tails were rendered without the ghosts)
@@ -1027,7 +1038,7 @@ impl<'a> Iteration<'a> {
                         // (found by its fit at a site the detector called empty)
                         fit.flags.remove(DotFlags::MISSING);
                     }
-                    let mut item = Item::from_fitter(fit, f);
+                    let mut item = Item::from_fitter(fit, f, kind.looked_at);
                     item.seen = seen;
                     Some(item)
                 },
@@ -1618,6 +1629,12 @@ fn coupling_map(
     };
     let (w, h) = (img.width(), img.height());
     let keep = |x: i64, y: i64| crate::joint::usable(img, mask, x, y);
+    // every dot once, in its clipped window (a neighbour's window is not used)
+    let dots: Vec<Option<JointDot>> = seeds
+        .par_iter()
+        .zip(prior)
+        .map(|(s, f)| JointDot::from_theta(rep(&f.params), s.window.clip(w, h)?, kind))
+        .collect();
     let links: Vec<crate::coupling::DotLinks> = seeds
         .par_iter()
         .enumerate()
@@ -1633,7 +1650,7 @@ fn coupling_map(
                 if same || m.share_in(win) < COUPLING_SHARE {
                     return;
                 }
-                if let Some(d) = JointDot::from_theta(rep(&prior[j].params), win, kind) {
+                if let Some(d) = dots.get(j).copied().flatten() {
                     idx.push(j);
                     nbs.push(d);
                 }
@@ -1644,7 +1661,7 @@ fn coupling_map(
             if nbs.is_empty() {
                 return Some(alone);
             }
-            let Some(dot) = JointDot::from_theta(rep(&prior[i].params), win, kind) else {
+            let Some(dot) = dots[i] else {
                 return Some(alone);
             };
             match crate::joint::coupling(kind, &dot, &nbs, noise, &keep) {
