@@ -78,8 +78,9 @@ pub(crate) struct Solved {
 }
 
 /// One dot's links as the builder gives them: its free parameters' standard deviations, and
-/// per neighbour its index and matrix (see [`crate::joint::DotCoupling`]).
-pub(crate) type DotLinks = Option<([f64; 7], Vec<(usize, [[f64; 8]; NB])>)>;
+/// per neighbour its index and matrix (see [`crate::joint::DotCoupling`]) as the map keeps it
+/// ([`Coupling::link`]).
+pub(crate) type DotLinks = Option<([f64; 7], Vec<(u32, [[f32; 8]; NB])>)>;
 
 /// The positions among the free parameters of `kind` of its dot parameters (all but the
 /// background).
@@ -91,6 +92,19 @@ fn dot_params(kind: Kind) -> Vec<usize> {
 }
 
 impl Coupling {
+    /// A link's matrix as the map keeps it: `m` (from [`crate::joint::coupling`], rows and
+    /// columns over the free parameters) restricted to the dot parameters of both dots.
+    pub(crate) fn link(kind: Kind, m: &[[f64; 8]; NB]) -> [[f32; 8]; NB] {
+        let dp = dot_params(kind);
+        let mut out = [[0.0f32; 8]; NB];
+        for (c32, c) in out.iter_mut().zip(m) {
+            for (o, &q) in dp.iter().enumerate() {
+                c32[o] = c[q] as f32;
+            }
+        }
+        out
+    }
+
     /// The map of `base` (the fits it is linearised at; a dot without links is not coupled).
     pub(crate) fn new(
         kind: Kind,
@@ -102,63 +116,52 @@ impl Coupling {
         let blurred = sampling.image_model() != Sampling::Point;
         let dp = dot_params(kind);
         // each dot's dot parameters' standard deviations
-        let sd: Vec<[f64; 7]> = links
+        let sd: Vec<[f64; 8]> = links
             .iter()
-            .map(|l| l.as_ref().map_or([0.0; 7], |l| l.0))
-            .collect();
-        type Kept = (Option<Theta>, [f64; 8], Vec<(u32, [[f32; 8]; NB])>);
-        let per_dot: Vec<Kept> = base
-            .par_iter()
-            .zip(links)
-            .map(|(f, l)| {
+            .map(|l| {
                 let mut sc = [0.0; 8];
-                let Some((s, ls)) = l else {
-                    return (None, sc, Vec::new());
-                };
-                for (o, &q) in dp.iter().enumerate() {
-                    sc[o] = s[q];
+                if let Some((s, _)) = l {
+                    for (o, &q) in dp.iter().enumerate() {
+                        sc[o] = s[q];
+                    }
                 }
-                let mut kept = Vec::with_capacity(ls.len());
-                for (j, mj) in ls {
-                    // the largest move of the dot (in its standard deviations) for a move of
-                    // one standard deviation in one of the neighbour's parameters (a neighbour
-                    // whose own map failed has no known scale: kept)
-                    let mut big = 0.0f64;
-                    for (c, col) in mj.iter().enumerate().take(dp.len()) {
-                        for &q in &dp {
-                            big = big.max((col[q] * sd[j][dp[c]] / s[q]).abs());
-                        }
-                    }
-                    let known = dp.iter().all(|&q| sd[j][q] > 0.0 && sd[j][q].is_finite());
-                    if known && big < MIN_LINK {
-                        continue;
-                    }
-                    let mut m32 = [[0.0f32; 8]; NB];
-                    for (c32, c) in m32.iter_mut().zip(&mj) {
-                        for (o, &q) in dp.iter().enumerate() {
-                            c32[o] = c[q] as f32;
-                        }
-                    }
-                    kept.push((j as u32, m32));
-                }
-                (Some(rep(&f.params, blurred)), sc, kept)
+                sc
             })
             .collect();
-        let total = per_dot.iter().map(|p| p.2.len()).sum();
-        let mut start = Vec::with_capacity(per_dot.len() + 1);
-        let (mut nb, mut m) = (Vec::with_capacity(total), Vec::with_capacity(total));
-        let mut scale = Vec::with_capacity(per_dot.len());
-        let mut theta = Vec::with_capacity(per_dot.len());
+        let nd = dp.len();
+        let mut start = Vec::with_capacity(links.len() + 1);
+        let (mut nb, mut m) = (Vec::new(), Vec::new());
+        let mut theta = Vec::with_capacity(links.len());
         start.push(0);
-        for (t, sc, kept) in per_dot {
-            theta.push(t);
-            scale.push(sc);
-            for (j, mj) in kept {
+        for (i, (f, l)) in base.iter().zip(links).enumerate() {
+            let Some((_, ls)) = l else {
+                theta.push(None);
+                start.push(nb.len());
+                continue;
+            };
+            theta.push(Some(rep(&f.params, blurred)));
+            let s = &sd[i];
+            for (j, mj) in ls {
+                // the largest move of the dot (in its standard deviations) for a move of one
+                // standard deviation in one of the neighbour's parameters (a neighbour whose
+                // own map failed has no known scale: kept)
+                let sj = &sd[j as usize];
+                let mut big = 0.0f64;
+                for (c, col) in mj.iter().enumerate().take(nd) {
+                    for o in 0..nd {
+                        big = big.max((f64::from(col[o]) * sj[c] / s[o]).abs());
+                    }
+                }
+                let known = sj[..nd].iter().all(|v| *v > 0.0 && v.is_finite());
+                if known && big < MIN_LINK {
+                    continue;
+                }
                 nb.push(j);
                 m.push(mj);
             }
             start.push(nb.len());
         }
+        let scale = sd;
         Coupling {
             fits: base.to_vec(),
             kind,

@@ -1665,7 +1665,13 @@ fn coupling_map(
                 return Some(alone);
             };
             match crate::joint::coupling(kind, &dot, &nbs, noise, &keep) {
-                Some(c) => Some((c.scale, idx.into_iter().zip(c.m).collect())),
+                Some(c) => Some((
+                    c.scale,
+                    idx.into_iter()
+                        .zip(&c.m)
+                        .map(|(j, m)| (j as u32, crate::coupling::Coupling::link(kind, m)))
+                        .collect(),
+                )),
                 None => Some(alone),
             }
         })
