@@ -131,6 +131,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let (mut tl, mut tp) = (0.0, 0.0);
     let (mut lin_pix, mut lin_deep, mut pix_deep) = (Vec::new(), Vec::new(), Vec::new());
     let mut one_deep = Vec::new();
+    // every image's fits by both paths, for the stack scatter each gives
+    let mut per_image: Vec<(Vec<DotFit>, Vec<DotFit>)> = Vec::new();
     let mut sweeps = Vec::new();
     // one stack image refitted from the reference's fits
     let refit = |img: &Image, cfg: &FitConfig, tails: &NeighbourTails| {
@@ -153,6 +155,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         tp += t.elapsed().as_secs_f64() * 1e3;
         sweeps.push((rl.linear_sweeps, rl.passes));
         lin_pix.extend(moves(&fl, &fp, |_| true));
+        per_image.push((fl.clone(), fp.clone()));
         if k < 3 {
             let (fd, _) = refit(img, &deep, &tails)?;
             lin_deep.extend(moves(&fl, &fd, |_| true));
@@ -173,6 +176,42 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     summary("linear vs deep (3 images)", &lin_deep);
     summary("pixel iteration vs deep (3 images)", &pix_deep);
     summary("first pass vs deep (3 images)", &one_deep);
+    // the per-dot scatter over the stack (sample standard deviation of x, as u_ref before the
+    // common-mode correction), by both paths, against the reference's bound
+    let scatter = |pick: fn(&(Vec<DotFit>, Vec<DotFit>)) -> &Vec<DotFit>, d: usize| {
+        let xs: Vec<f64> = per_image
+            .iter()
+            .map(|p| &pick(p)[d])
+            .filter(|f| f.status.is_ok())
+            .map(|f| f.params.x0)
+            .collect();
+        let n = xs.len() as f64;
+        if xs.len() < per_image.len() {
+            return f64::NAN;
+        }
+        let m = xs.iter().sum::<f64>() / n;
+        (xs.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / (n - 1.0)).sqrt()
+    };
+    let (mut ratio, mut u_lin, mut u_pix, mut bound) =
+        (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    for (d, r) in ref_fits.iter().enumerate() {
+        let (a, b) = (scatter(|p| &p.0, d), scatter(|p| &p.1, d));
+        if r.status.is_ok() && a.is_finite() && b.is_finite() && b > 0.0 {
+            ratio.push(a / b);
+            u_lin.push(a);
+            u_pix.push(b);
+            bound.push(r.crlb_x);
+        }
+    }
+    let med = |v: &mut Vec<f64>| bostrack_core::median(v);
+    println!(
+        "stack scatter of x over {} dots: median linear / pixel iteration {:.4}; median scatter linear {:.5} px, pixel iteration {:.5} px, median reference bound {:.5} px",
+        ratio.len(),
+        med(&mut ratio),
+        med(&mut u_lin),
+        med(&mut u_pix),
+        med(&mut bound)
+    );
     if std::env::args().any(|a| a == "--stack-only") {
         return Ok(());
     }
