@@ -13,6 +13,9 @@ use bostrack_fit::{
 use bostrack_io::{bos_sample_dir, read_image, read_mask_for};
 use std::time::Instant;
 
+/// One stack image's fits by the linear map and by the pixel iteration.
+type Paths = (Vec<DotFit>, Vec<DotFit>);
+
 fn in_flow(f: &DotFit) -> bool {
     (700.0..=860.0).contains(&f.params.y0) && (380.0..=640.0).contains(&f.params.x0)
 }
@@ -132,7 +135,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let (mut lin_pix, mut lin_deep, mut pix_deep) = (Vec::new(), Vec::new(), Vec::new());
     let mut one_deep = Vec::new();
     // every image's fits by both paths, for the stack scatter each gives
-    let mut per_image: Vec<(Vec<DotFit>, Vec<DotFit>)> = Vec::new();
+    let mut per_image: Vec<Paths> = Vec::new();
     let mut sweeps = Vec::new();
     // one stack image refitted from the reference's fits
     let refit = |img: &Image, cfg: &FitConfig, tails: &NeighbourTails| {
@@ -178,7 +181,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     summary("first pass vs deep (3 images)", &one_deep);
     // the per-dot scatter over the stack (sample standard deviation of x, as u_ref before the
     // common-mode correction), by both paths, against the reference's bound
-    let scatter = |pick: fn(&(Vec<DotFit>, Vec<DotFit>)) -> &Vec<DotFit>, d: usize| {
+    let scatter = |pick: fn(&Paths) -> &Vec<DotFit>, d: usize| {
         let xs: Vec<f64> = per_image
             .iter()
             .map(|p| &pick(p)[d])
