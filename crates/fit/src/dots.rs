@@ -1513,8 +1513,20 @@ impl NeighbourTails {
         height: usize,
     ) -> NeighbourTails {
         let hood = Neighbourhood::new(prior, seeds, cfg.sampling);
+        NeighbourTails::render(&hood, prior.len(), cfg, width, height)
+    }
+
+    /// The tails of `hood`'s models (made from `n_prior` fits) over its seeds' windows.
+    fn render(
+        hood: &Neighbourhood,
+        n_prior: usize,
+        cfg: &FitConfig,
+        width: usize,
+        height: usize,
+    ) -> NeighbourTails {
+        let seeds = hood.seeds;
         // (a prior of another length: no tails, every window is rendered by `refit_dots`)
-        let same_length = prior.len() == seeds.len();
+        let same_length = n_prior == seeds.len();
         let per_seed: Vec<(Option<Window>, Vec<f64>, u32)> = seeds
             .par_iter()
             .enumerate()
@@ -1529,7 +1541,7 @@ impl NeighbourTails {
                     }
                     f.ws.resize(win.x, win.y, win.width, win.height);
                     let mut sum = vec![0.0; win.len()];
-                    let count = for_each_neighbour(&mut f.ws, i, &hood, near, |ws, amp| {
+                    let count = for_each_neighbour(&mut f.ws, i, hood, near, |ws, amp| {
                         for (o, t) in sum.iter_mut().zip(&ws.tmp) {
                             *o += amp * t;
                         }
@@ -1583,12 +1595,14 @@ impl NeighbourTails {
         mask: Option<&Mask>,
         noise: &NoiseModel,
     ) -> NeighbourTails {
-        let mut tails = NeighbourTails::new(prior, seeds, cfg, img.width(), img.height());
+        // (one neighbourhood of `prior` for the tails and the map)
+        let hood = Neighbourhood::new(prior, seeds, cfg.sampling);
+        let mut tails = NeighbourTails::render(&hood, prior.len(), cfg, img.width(), img.height());
         if prior.len() == seeds.len()
             && cfg.neighbours == Neighbours::Subtract
             && cfg.estimator == Estimator::Lsg
         {
-            tails.coupling = Some(coupling_map(prior, seeds, cfg, img, mask, noise));
+            tails.coupling = Some(coupling_map(&hood, prior, cfg, img, mask, noise));
         }
         tails
     }
@@ -1611,22 +1625,20 @@ impl NeighbourTails {
 /// `coupling::MIN_LINK`).
 const COUPLING_SHARE: f64 = 1e-7;
 
-/// The linear coupling map of `prior` (see [`NeighbourTails::coupled`]).
+/// The linear coupling map of `prior` (see [`NeighbourTails::coupled`]); `hood`: its
+/// neighbourhood.
 fn coupling_map(
+    hood: &Neighbourhood,
     prior: &[DotFit],
-    seeds: &[Seed],
     cfg: &FitConfig,
     img: &Image,
     mask: Option<&Mask>,
     noise: &NoiseModel,
 ) -> crate::coupling::Coupling {
-    let hood = Neighbourhood::new(prior, seeds, cfg.sampling);
+    let seeds = hood.seeds;
     let kind = crate::eval::Kind::from_model(cfg.model);
     let blurred = cfg.sampling.image_model() != Sampling::Point;
-    let rep = |g: &Gaussian2D| {
-        let t = theta_from_gaussian(g);
-        if blurred { pixel_blur(&t) } else { t }
-    };
+    let rep = |g: &Gaussian2D| crate::coupling::rep(g, blurred);
     let (w, h) = (img.width(), img.height());
     let keep = |x: i64, y: i64| crate::joint::usable(img, mask, x, y);
     // every dot once, in its clipped window (a neighbour's window is not used)

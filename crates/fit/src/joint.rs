@@ -32,11 +32,11 @@ pub(crate) const MIN_SHARE: f64 = 1e-2;
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct JointDot {
     /// Pixel-blurred point-model parameters.
-    pub(crate) theta: Theta,
+    theta: Theta,
     shape: Shape,
     /// Derivative coefficients of the model kind (rows: free parameters, columns: basis).
     coef: [[f64; 7]; 7],
-    pub(crate) window: Window,
+    window: Window,
 }
 
 impl JointDot {
@@ -67,7 +67,7 @@ impl JointDot {
 
     /// The dot's value (without background) and its derivatives with respect to the free
     /// parameters of `kind` (in `kind.free()` order; the background's is 1) at pixel (x, y).
-    pub(crate) fn eval(&self, kind: Kind, x: f64, y: f64, out: &mut [f64; 7]) -> f64 {
+    fn eval(&self, kind: Kind, x: f64, y: f64, out: &mut [f64; 7]) -> f64 {
         let (dx, dy) = (x - self.theta[0], y - self.theta[1]);
         let s = &self.shape;
         let e = (-0.5 * (s.a * dx * dx + 2.0 * s.b * dx * dy + s.c * dy * dy)).exp();
