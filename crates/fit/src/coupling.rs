@@ -69,6 +69,9 @@ pub(crate) struct Coupling {
     /// Per link, `M` restricted to the dot parameters (the free ones without the background) of
     /// both dots, by columns, each padded to 8.
     m: Vec<[[f32; 8]; NB]>,
+    /// Per dot, its Fisher matrix at `fits` over its window (with its fit's weights), for the
+    /// Gauss-Newton step that stands for an image's first pass (`None`: that dot is fitted).
+    pub(crate) looked: Vec<Option<crate::dots::Looked>>,
 }
 
 /// What [`Coupling::solve`] found.
@@ -114,6 +117,7 @@ impl Coupling {
         base: &[DotFit],
         red: Vec<bool>,
         links: Vec<DotLinks>,
+        looked: Vec<Option<crate::dots::Looked>>,
     ) -> Coupling {
         let blurred = sampling.image_model() != Sampling::Point;
         let dp = dot_params(kind);
@@ -174,6 +178,7 @@ impl Coupling {
             start,
             nb,
             m,
+            looked,
         }
     }
 

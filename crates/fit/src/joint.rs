@@ -217,6 +217,8 @@ pub(crate) const NB: usize = 6;
 pub(crate) struct DotCoupling {
     /// Each free parameter's standard deviation, `sqrt((F⁻¹)_kk)`.
     pub scale: [f64; 7],
+    /// `F` over the free parameters.
+    pub fisher: [[f64; 7]; 7],
     /// Per neighbour (in the order given), `M = F⁻¹ C` by columns (the neighbour's free
     /// parameters without the background; in each the dot's free parameters, padded to 8).
     pub m: Vec<[[f64; 8]; NB]>,
@@ -377,7 +379,11 @@ pub(crate) fn coupling(
         }
         out.push(mk);
     }
-    Some(DotCoupling { scale, m: out })
+    Some(DotCoupling {
+        scale,
+        fisher: f,
+        m: out,
+    })
 }
 
 /// `s1[m][n] = Σ w E E_k X^m Y^n` (m + n ≤ 4) and `s2[m][n] = Σ w E_k X^m Y^n` (m + n ≤ 2) over

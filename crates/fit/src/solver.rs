@@ -66,6 +66,7 @@ impl Bounds {
 
 /// `L D Lᵀ` factor (unit lower `L`, no square roots) of the leading n×n block of
 /// `N + λ diag N`, with the reciprocal pivots stored: a solve has no division.
+#[derive(Clone, Debug)]
 pub(crate) struct Factor {
     l: [[f64; 7]; 7],
     inv_d: [f64; 7],
@@ -132,6 +133,21 @@ impl Factor {
             2 => self.solve_n::<2>(g),
             _ => self.solve_n::<1>(g),
         }
+    }
+
+    /// `xᵀ (L D Lᵀ) x` (the factored matrix's quadratic form, λ included).
+    pub fn quad_form(&self, x: &[f64; 7]) -> f64 {
+        let n = self.n;
+        let mut s = 0.0;
+        for k in 0..n {
+            // (Lᵀx)_k = x_k + Σ_{i>k} L_ik x_i
+            let mut t = x[k];
+            for i in k + 1..n {
+                t += self.l[i][k] * x[i];
+            }
+            s += t * t / self.inv_d[k];
+        }
+        s
     }
 
     fn solve_n<const N: usize>(&self, g: &[f64; 7]) -> [f64; 7] {
@@ -434,6 +450,23 @@ mod tests {
         assert!((d[1] * d[1] - (4.0 * 2.0 - 0.25) / det).abs() < 1e-12);
         nm[2][2] = 0.0;
         assert!(solve_damped(&nm, &g, 3, 0.0).is_none());
+    }
+
+    /// The factor's quadratic form equals the matrix's (`xᵀ N x`), for every size.
+    #[test]
+    fn factor_quad_form_is_the_matrix_quad_form() {
+        for n in 1..=7 {
+            let mut nm = [[0.0; 7]; 7];
+            for i in 0..n {
+                for j in 0..n {
+                    nm[i][j] = 1.0 / (1.0 + i as f64 + j as f64) + if i == j { 0.5 } else { 0.0 };
+                }
+            }
+            let x: [f64; 7] = std::array::from_fn(|k| (k as f64 - 2.5) * 10f64.powi(k as i32 % 3));
+            let f = Factor::new(&nm, n, 0.0).expect("positive definite");
+            let (a, b) = (f.quad_form(&x), quad_form(&nm, &x, n));
+            assert!((a - b).abs() <= 1e-12 * b.abs(), "n {n}: {a} {b}");
+        }
     }
 
     /// The LDLᵀ factor for every size the fit uses, damped and undamped, against the residual

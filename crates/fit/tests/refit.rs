@@ -148,9 +148,12 @@ fn coupled_refit_reaches_the_joint_solution_without_refitting() {
         worst_in_bounds(&lin, &joint),
         worst_in_bounds(&first, &joint),
     );
-    // measured: 0.017 (linear) against 0.31 (the first pass alone)
+    // measured: 0.049 (linear) against 0.31 (the first pass alone); the first pass's
+    // Gauss-Newton steps from the prior leave up to ~0.04 (a second step per dot brought it to
+    // 0.017, for 8 % more of the real stack's time; the stack's scatter, all its positions are
+    // for, did not change: `converge --stack-only`); within the neighbour tolerance
     println!("worst against the joint solution: linear {w_lin:.3}, first pass {w_first:.3} bounds");
-    assert!(w_lin < 0.05, "{w_lin}");
+    assert!(w_lin < cfg.neighbour_tolerance, "{w_lin}");
     assert!(w_first > 0.2, "{w_first}");
 }
 
@@ -170,4 +173,45 @@ fn coupled_refit_falls_back_to_the_pixel_iteration_for_a_new_dot() {
     assert_eq!(report.linear_sweeps, 0, "{report:?}");
     assert!(report.passes > 1 && report.converged, "{report:?}");
     assert_eq!(fits[14].status, FitStatus::Converged, "{:?}", fits[14]);
+}
+
+/// What each dot's own least-squares fit does with its neighbours held at `fits`: one pass of
+/// full fits (no Gauss-Newton steps, no linear map), in units of the bound of `fits`. At the
+/// joint solution no dot moves by more than the tolerances allow.
+fn stationarity(img: &Image, seeds: &[Seed], fits: &[bostrack_core::DotFit]) -> f64 {
+    let one = FitConfig {
+        neighbour_passes: 1,
+        ..FitConfig::default()
+    };
+    let noise = NoiseModel::read(10.0);
+    let again = refit_dots(img, None, seeds, &one, &noise, fits, None).unwrap();
+    worst_in_bounds(&again, fits)
+}
+
+/// The neighbour iteration's Gauss-Newton steps (in place of refits) land where the dots' own
+/// fits stay: on a fresh image (`fit_dots`), on a frame refitted from another image's fits, and
+/// on a stack image through the coupling map (whose first pass is made of steps too).
+#[test]
+fn linear_steps_land_on_the_fits_own_solution() {
+    let cfg = FitConfig::default();
+    let noise = NoiseModel::read(10.0);
+    let (reference, seeds, _) = lattice([0.0, 0.0], 1);
+    let (prior, r0) =
+        bostrack_fit::fit_dots_report(&reference, None, &seeds, &cfg, &noise).unwrap();
+    let (img, seeds2, _) = lattice([0.3, -0.2], 4);
+    let (frame, r1) = refit_dots_report(&img, None, &seeds2, &cfg, &noise, &prior, None).unwrap();
+    let (still, _, _) = lattice([0.0, 0.0], 5);
+    let coupled = NeighbourTails::coupled(&prior, &seeds, &cfg, &reference, None, &noise);
+    let (stack, r2) =
+        refit_dots_report(&still, None, &seeds, &cfg, &noise, &prior, Some(&coupled)).unwrap();
+    println!("fit_dots {r0:?}\nframe {r1:?}\nstack {r2:?}");
+    assert!(r1.linear_steps > 0 && r1.converged, "{r1:?}");
+    assert!(r2.linear_steps > 0 && r2.linear_sweeps > 0, "{r2:?}");
+    let (s0, s1, s2) = (
+        stationarity(&reference, &seeds, &prior),
+        stationarity(&img, &seeds2, &frame),
+        stationarity(&still, &seeds, &stack),
+    );
+    println!("largest move of a full refit: fit_dots {s0:.3}, frame {s1:.3}, stack {s2:.3} bounds");
+    assert!(s0 < 0.2 && s1 < 0.2 && s2 < 0.2, "{s0} {s1} {s2}");
 }
