@@ -94,6 +94,16 @@ pub fn fit_dots_report(
     cfg: &FitConfig,
     noise: &NoiseModel,
 ) -> Result<(Vec<DotFit>, PassReport), FitError> {
+    fit_dots_inner(img, mask, seeds, cfg, noise).map(|(f, r, _)| (f, r))
+}
+
+fn fit_dots_inner(
+    img: &Image,
+    mask: Option<&Mask>,
+    seeds: &[Seed],
+    cfg: &FitConfig,
+    noise: &NoiseModel,
+) -> Result<(Vec<DotFit>, PassReport, FitMemory), FitError> {
     cfg.validate()?;
     check_mask(img, mask)?;
     if cfg.neighbours == Neighbours::None || cfg.estimator != Estimator::Lsg {
@@ -107,7 +117,8 @@ pub fn fit_dots_report(
                 },
             )
             .collect();
-        return Ok((finish(items, cfg), PassReport::none()));
+        let memory = FitMemory::of(&items);
+        return Ok((finish(items, cfg), PassReport::none(), memory));
     }
     // first neighbour models: the moment estimates (IWC record), which stop at the saddle
     // towards a touching neighbour, whereas a plain least-squares fit of a window holding two
@@ -151,7 +162,8 @@ pub fn fit_dots_report(
             linear_sweeps: 0,
             linear_steps: 0,
         };
-        return Ok((finish(first, cfg), report));
+        let memory = FitMemory::of(&first);
+        return Ok((finish(first, cfg), report, memory));
     }
     // pass 2: every dot again, to the full tolerance (with the weights check)
     let fits: Vec<DotFit> = first.iter().map(|i| i.fit).collect();
@@ -215,6 +227,81 @@ pub fn refit_dots_report(
     prior: &[DotFit],
     tails: Option<&NeighbourTails>,
 ) -> Result<(Vec<DotFit>, PassReport), FitError> {
+    refit_dots_remembered(img, mask, seeds, cfg, noise, prior, tails, None)
+}
+
+/// What a fit of an image keeps for fitting another image of the same dots: per dot the
+/// Fisher matrix of its last least-squares fit (point-model fits; see [`fit_dots_remembered`]).
+#[derive(Clone, Debug, Default)]
+pub struct FitMemory {
+    looked: Vec<Option<std::sync::Arc<Looked>>>,
+}
+
+impl FitMemory {
+    fn of(items: &[Item]) -> FitMemory {
+        FitMemory {
+            looked: items.iter().map(|i| i.looked.clone()).collect(),
+        }
+    }
+
+    /// Dots remembered (the seeds of the fit).
+    pub fn len(&self) -> usize {
+        self.looked.len()
+    }
+
+    /// Whether no dot is remembered.
+    pub fn is_empty(&self) -> bool {
+        self.looked.is_empty()
+    }
+
+    /// The memory for images whose noise variances are `ratio` times those the fits were
+    /// weighted with (a reference that is the mean of `K` no-flow images, fitted with the noise
+    /// model divided by `K`, and single frames: `ratio = K`): every Fisher matrix divided by
+    /// `ratio`.
+    pub fn for_variance_ratio(&self, ratio: f64) -> FitMemory {
+        FitMemory {
+            looked: self
+                .looked
+                .iter()
+                .map(|l| {
+                    l.as_ref()
+                        .map(|l| std::sync::Arc::new(l.scaled(1.0 / ratio)))
+                })
+                .collect(),
+        }
+    }
+}
+
+/// [`fit_dots_report`], with the [`FitMemory`] that lets [`refit_dots_remembered`] fit another
+/// image of the same dots from these fits (a gradient frame from the reference) by one
+/// Gauss-Newton step per dot where its dot is the same up to noise.
+pub fn fit_dots_remembered(
+    img: &Image,
+    mask: Option<&Mask>,
+    seeds: &[Seed],
+    cfg: &FitConfig,
+    noise: &NoiseModel,
+) -> Result<(Vec<DotFit>, PassReport, FitMemory), FitError> {
+    fit_dots_inner(img, mask, seeds, cfg, noise)
+}
+
+/// [`refit_dots_report`] with the [`FitMemory`] of the fits `prior` was made from (in the same
+/// seed order; ignored when of another length). Its first pass takes, for each dot whose prior
+/// fit is remembered, one Gauss-Newton step from the prior with that fit's Fisher matrix where
+/// the step is within 2 standard deviations of the position (the dot is the same up to noise:
+/// outside a flow region), and fits the others; then the neighbour iteration as before.
+/// With a coupled [`NeighbourTails`] the map's Fisher matrices are used instead.
+#[allow(clippy::too_many_arguments)]
+pub fn refit_dots_remembered(
+    img: &Image,
+    mask: Option<&Mask>,
+    seeds: &[Seed],
+    cfg: &FitConfig,
+    noise: &NoiseModel,
+    prior: &[DotFit],
+    tails: Option<&NeighbourTails>,
+    memory: Option<&FitMemory>,
+) -> Result<(Vec<DotFit>, PassReport), FitError> {
     cfg.validate()?;
     if prior.len() != seeds.len() {
         return Err(FitError::InvalidConfig(format!(
@@ -249,6 +336,11 @@ pub fn refit_dots_report(
         let coupling = tails
             .and_then(|t| t.coupling.as_ref())
             .filter(|c| c.fits.len() == seeds.len() && cfg.neighbour_passes > 1);
+        it.first_steps = match (coupling, memory) {
+            (Some(c), _) => Some(c.looked.as_slice()),
+            (None, Some(m)) => Some(m.looked.as_slice()),
+            (None, None) => None,
+        };
         let mut hood = Neighbourhood::new(coupling.map_or(prior, |c| &c.fits), seeds, cfg.sampling);
         hood.set_ghosts(it.ghosts(prior, &hood));
         let first = it.pass(
@@ -292,7 +384,11 @@ pub fn refit_dots_report(
             }
         }
         hood.update(&first, cfg.sampling);
-        return Ok(it.converge(first, vec![fitted(seeds)], hood, &mut canvas_buf, None));
+        let first_steps = first.iter().filter(|i| i.stepped).count();
+        let (fits, mut report, _) =
+            it.converge(first, vec![fitted(seeds)], hood, &mut canvas_buf, None);
+        report.linear_steps += first_steps;
+        return Ok((fits, report));
     }
     let items: Vec<Item> = seeds
         .par_iter()
@@ -435,6 +531,15 @@ impl Looked {
     fn quad_form(&self, d: &[f64; 7]) -> f64 {
         self.factor.quad_form(d)
     }
+
+    /// The same with the Fisher matrix times `f > 0`.
+    fn scaled(&self, f: f64) -> Looked {
+        Looked {
+            factor: self.factor.scaled(f),
+            position: self.position.map(|v| v / f),
+            window: self.window,
+        }
+    }
 }
 
 /// A look at a dot whose neighbours changed ([`look`]).
@@ -542,6 +647,12 @@ fn look(
 /// the bound (on the real gradient frame 98.5 % of the refits moved less than 1 bound).
 const LINEAR_STEP_MAX: f64 = 2.0;
 
+/// The most a Gauss-Newton step may change a dot's position and shape (Mahalanobis length of
+/// that part, standard deviations) to be taken: for noise alone that length exceeds 5 with a
+/// probability of 0.2 % (χ with 5 degrees of freedom); a dot whose shape changed (the flow's
+/// blur against a reference prior) goes beyond and is fitted.
+const LINEAR_MOVE_MAX: f64 = 5.0;
+
 /// The dot `fit` updated by the Gauss-Newton step of the [`look`] `l` at it (with `looked`):
 /// what a refit would return to second order in the step, without another pass over the window.
 /// Its χ² and rms are those of the linearised model at the new parameters (as the solver's last
@@ -585,6 +696,19 @@ fn linear_step(
             d[k] = 0.0;
         }
     }
+    // (a step that changes the dot's position and shape by more than LINEAR_MOVE_MAX, e.g. a
+    // dot blurred by the flow against its prior, is not linear enough: fitted; the amplitude
+    // and the background enter the model linearly)
+    let mut shape = d;
+    for (k, &p) in kind.free().iter().enumerate() {
+        if p == IA {
+            shape[k] = 0.0;
+        }
+    }
+    if looked.quad_form(&shape).max(0.0).sqrt() > LINEAR_MOVE_MAX {
+        return None;
+    }
+    let moved = looked.quad_form(&d).max(0.0).sqrt();
     let mut fit = *fit;
     fit.params = params;
     if ws.n_used > 0 {
@@ -594,7 +718,7 @@ fn linear_step(
         fit,
         chi2: after,
         dof: ws.n_used.saturating_sub(kind.n_free()),
-        moved: looked.quad_form(&d).max(0.0).sqrt(),
+        moved,
         looked: keep,
         stepped: true,
     })
@@ -658,6 +782,10 @@ struct Iteration<'a> {
     /// The shape at which a singular least-squares fit is fitted again with its shape held
     /// (`SHAPE_FIXED`): the median of the image's converged fits, from the second pass on.
     fixed_shape: Option<[f64; 3]>,
+    /// For a first pass from prior fits: per dot, the Fisher matrix to take one Gauss-Newton
+    /// step from its prior with instead of fitting it (the stack's coupling map, or the
+    /// reference's own fits for a gradient frame: [`FitMemory`]).
+    first_steps: Option<&'a [Option<std::sync::Arc<Looked>>]>,
 }
 
 impl<'a> Iteration<'a> {
@@ -683,6 +811,7 @@ impl<'a> Iteration<'a> {
             noise,
             half: half as i64,
             fixed_shape: None,
+            first_steps: None,
         }
     }
 
@@ -814,7 +943,7 @@ impl<'a> Iteration<'a> {
         mut hood: Neighbourhood,
         canvas_buf: &mut Vec<f64>,
         mut halves: Option<Vec<bool>>,
-    ) -> (Vec<DotFit>, PassReport) {
+    ) -> (Vec<DotFit>, PassReport, FitMemory) {
         let tol = self.cfg.neighbour_tolerance;
         // dots whose refit moved them no less than the one before, for the third time (not
         // contracting: an oscillation or a cycle of failing and recovering fits), are not
@@ -892,7 +1021,8 @@ impl<'a> Iteration<'a> {
                     linear_sweeps: 0,
                     linear_steps,
                 };
-                return (self.finish(items, &hood, &links), report);
+                let memory = FitMemory::of(&items);
+                return (self.finish(items, &hood, &links), report, memory);
             }
             let windowed = (count as f64) < CANVAS_FRACTION * self.seeds.len() as f64;
             let next = self.pass_with(
@@ -1078,12 +1208,10 @@ impl<'a> Iteration<'a> {
     ) -> Vec<Option<Item>> {
         let (img, mask, seeds, cfg, noise) =
             (self.img, self.mask, self.seeds, self.cfg, self.noise);
-        // the first pass of a coupled stack image: the map's Fisher matrices for its steps
-        let steps = tails
-            .filter(|_| !kind.looked_at)
-            .and_then(|t| t.coupling.as_ref())
-            .map(|c| c.looked.as_slice())
-            .filter(|l| l.len() == seeds.len());
+        // a first pass from prior fits: the Fisher matrices for its steps
+        let steps = self
+            .first_steps
+            .filter(|l| check.is_none() && l.len() == seeds.len());
         // without rendered tails: every neighbour model once into one canvas
         let canvas = (tails.is_none() && !windowed).then(|| {
             Canvas::render(
@@ -1164,19 +1292,20 @@ impl<'a> Iteration<'a> {
                             return Some(stepped);
                         }
                     }
-                    // a stack image's first pass: one Gauss-Newton step from the reference's
-                    // fit with the coupling map's Fisher matrix where it lands within
-                    // LINEAR_STEP_MAX (its fit with the neighbours held, to second order)
+                    // a first pass from prior fits (a stack image, a gradient frame): one
+                    // Gauss-Newton step from the prior with its Fisher matrix where it lands
+                    // within LINEAR_STEP_MAX (the fit with the neighbours held, to second order)
                     if let Some(looked) = steps.and_then(|l| l[i].as_ref())
                         && !look_for
                     {
                         let mut from = *own;
                         from.index = s.index;
                         from.flags = flags | s.flags;
+                        let keep = kind.looked_at.then(|| looked.clone());
                         if let Some(l) = look(&mut f.ws, &from, looked, fkind, cfg.sampling, noise)
                             .filter(|l| l.moves <= LINEAR_STEP_MAX)
                             && let Some(stepped) =
-                                linear_step(&f.ws, &from, looked, None, &l, fkind, cfg.sampling)
+                                linear_step(&f.ws, &from, looked, keep, &l, fkind, cfg.sampling)
                         {
                             return Some(stepped);
                         }
@@ -1933,7 +2062,7 @@ fn coupling_map(
         .collect();
     type PerDot = Option<(
         ([f64; 7], Vec<(u32, [[f32; 8]; crate::joint::NB])>),
-        Option<Looked>,
+        Option<std::sync::Arc<Looked>>,
     )>;
     let per_dot: Vec<PerDot> = seeds
         .par_iter()
@@ -1962,7 +2091,7 @@ fn coupling_map(
             let Some(c) = crate::joint::coupling(kind, &dot, &nbs, noise, &keep) else {
                 return Some((alone, None));
             };
-            let looked = Looked::new(&c.fisher, kind.n_free(), win);
+            let looked = Looked::new(&c.fisher, kind.n_free(), win).map(std::sync::Arc::new);
             if nbs.is_empty() {
                 return Some((alone, looked));
             }
@@ -1978,7 +2107,10 @@ fn coupling_map(
             ))
         })
         .collect();
-    let (links, looked): (Vec<crate::coupling::DotLinks>, Vec<Option<Looked>>) = per_dot
+    let (links, looked): (
+        Vec<crate::coupling::DotLinks>,
+        Vec<Option<std::sync::Arc<Looked>>>,
+    ) = per_dot
         .into_iter()
         .map(|d| match d {
             Some((l, k)) => (Some(l), k),

@@ -74,8 +74,8 @@ pub use config::{
     Neighbours, Solver,
 };
 pub use dots::{
-    NeighbourTails, PassReport, TAILS_MAX_SHIFT, fit_dots, fit_dots_report, refit_dots,
-    refit_dots_report,
+    FitMemory, NeighbourTails, PassReport, TAILS_MAX_SHIFT, fit_dots, fit_dots_remembered,
+    fit_dots_report, refit_dots, refit_dots_remembered, refit_dots_report,
 };
 pub use error::FitError;
 pub use fit::{Fitter, WindowSamples, fit_window};

@@ -135,6 +135,15 @@ impl Factor {
         }
     }
 
+    /// The factor of the matrix times `f > 0` (`L` unchanged, `D` times `f`).
+    pub fn scaled(&self, f: f64) -> Factor {
+        let mut out = self.clone();
+        for v in out.inv_d.iter_mut().take(self.n) {
+            *v /= f;
+        }
+        out
+    }
+
     /// `xᵀ (L D Lᵀ) x` (the factored matrix's quadratic form, λ included).
     pub fn quad_form(&self, x: &[f64; 7]) -> f64 {
         let n = self.n;

@@ -215,3 +215,60 @@ fn linear_steps_land_on_the_fits_own_solution() {
     println!("largest move of a full refit: fit_dots {s0:.3}, frame {s1:.3}, stack {s2:.3} bounds");
     assert!(s0 < 0.2 && s1 < 0.2 && s2 < 0.2, "{s0} {s1} {s2}");
 }
+
+/// A frame refitted with the reference fits' memory: its first pass takes Gauss-Newton steps
+/// from the priors (here, the same dots up to noise) and lands where the dots' own fits stay;
+/// the memory of a reference weighted with a 4 × smaller noise variance, scaled back by
+/// `for_variance_ratio(4)`, gives the same frame fits.
+#[test]
+fn a_remembered_reference_lets_a_frame_step_from_its_priors() {
+    let cfg = FitConfig::default();
+    let noise = NoiseModel::read(10.0);
+    let (reference, seeds, _) = lattice([0.0, 0.0], 1);
+    let (prior, _, memory) =
+        bostrack_fit::fit_dots_remembered(&reference, None, &seeds, &cfg, &noise).unwrap();
+    assert_eq!(memory.len(), seeds.len());
+    let (img, _, _) = lattice([0.0, 0.0], 6);
+    let (plain, r0) = refit_dots_report(&img, None, &seeds, &cfg, &noise, &prior, None).unwrap();
+    let (stepped, r1) = bostrack_fit::refit_dots_remembered(
+        &img,
+        None,
+        &seeds,
+        &cfg,
+        &noise,
+        &prior,
+        None,
+        Some(&memory),
+    )
+    .unwrap();
+    println!("without memory {r0:?}\nwith memory {r1:?}");
+    // (the steps of the first pass count among the refits' steps)
+    assert!(
+        r1.linear_steps >= r0.linear_steps + seeds.len() / 2,
+        "{r0:?} {r1:?}"
+    );
+    let s = stationarity(&img, &seeds, &stepped);
+    let d = worst_in_bounds(&stepped, &plain);
+    println!("largest move of a full refit {s:.3}, from the fits without memory {d:.3} bounds");
+    assert!(s < 0.2 && d < 0.2, "{s} {d}");
+    // read noise only: the weights are uniform, so the fits do not depend on the variance's
+    // scale (but for where they stop within their tolerances: ~1e-4 of the bound), and the
+    // scaled memory is the memory (without the scaling every step would be 4 × too short)
+    let quarter = NoiseModel::read(5.0);
+    let (prior4, _, memory4) =
+        bostrack_fit::fit_dots_remembered(&reference, None, &seeds, &cfg, &quarter).unwrap();
+    let (again, _) = bostrack_fit::refit_dots_remembered(
+        &img,
+        None,
+        &seeds,
+        &cfg,
+        &noise,
+        &prior4,
+        None,
+        Some(&memory4.for_variance_ratio(4.0)),
+    )
+    .unwrap();
+    let w = worst_in_bounds(&again, &stepped);
+    println!("scaled memory against the memory: {w:e} bounds");
+    assert!(w < 1e-3, "{w}");
+}

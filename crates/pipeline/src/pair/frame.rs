@@ -180,7 +180,7 @@ pub(crate) fn fit_match_timed(
         None
     };
     let fits = match prior {
-        Some((prior, tails)) => bostrack_fit::refit_dots(
+        Some((prior, tails)) => bostrack_fit::refit_dots_remembered(
             img,
             mask,
             &tracked.seeds,
@@ -188,7 +188,9 @@ pub(crate) fn fit_match_timed(
             &ctx.noise,
             &prior,
             tails,
-        ),
+            ctx.memory.as_ref(),
+        )
+        .map(|r| r.0),
         None => bostrack_fit::fit_dots(img, mask, &tracked.seeds, &plan.fit, &ctx.noise),
     }
     .map_err(|e| {

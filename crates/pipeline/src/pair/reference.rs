@@ -67,6 +67,9 @@ pub struct ReferenceContext {
     pub(crate) detection: Detection,
     /// One per reference seed, in the detection's order.
     pub(crate) fits: Vec<DotFit>,
+    /// What the reference's fits keep for the frames' first passes (scaled to a frame's noise
+    /// for a stack-mean reference).
+    pub(crate) memory: Option<bostrack_fit::FitMemory>,
     /// The noise model of one camera frame (fits of gradient and stack images).
     pub(crate) noise: NoiseModel,
     pub(crate) noise_source: &'static str,
@@ -157,6 +160,24 @@ pub(crate) fn image_path(img: &Image, fallback: &str) -> PathBuf {
 
 pub(crate) fn size_text(w: usize, h: usize) -> String {
     format!("{w}x{h} px")
+}
+
+/// The reference fits' [`bostrack_fit::FitMemory`] for single frames: a stack-mean reference
+/// was weighted with the frame's noise model divided by K (every variance 1/K of a frame's).
+fn memory_for_frames(
+    memory: bostrack_fit::FitMemory,
+    frame: &NoiseModel,
+    reference: &NoiseModel,
+) -> bostrack_fit::FitMemory {
+    if reference == frame {
+        return memory;
+    }
+    let ratio = if reference.read_variance > 0.0 {
+        frame.read_variance / reference.read_variance
+    } else {
+        frame.gain / reference.gain
+    };
+    memory.for_variance_ratio(ratio)
 }
 
 pub(crate) fn usable(d: &DotFit) -> bool {
@@ -342,7 +363,7 @@ impl ReferenceContext {
         sw.lap();
         times.push("noise", noise_time);
         times.push("detect", detect_time);
-        let fits = bostrack_fit::fit_dots(
+        let (fits, _, memory) = bostrack_fit::fit_dots_remembered(
             &reference,
             mask_ref,
             &detection.seeds,
@@ -373,6 +394,7 @@ impl ReferenceContext {
             detection,
             stack_stats: vec![None; fits.len()],
             fits,
+            memory: Some(memory_for_frames(memory, &noise, &reference_noise)),
             noise,
             noise_source,
             reference_noise,
