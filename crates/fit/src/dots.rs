@@ -686,19 +686,16 @@ fn linear_step(
     } else {
         l.ssr
     };
-    // (the dot as its neighbours see it: without its background, as `LastFit::moved`)
-    let mut d = l.step;
+    // `d`: the dot as its neighbours see it, without its background (as `LastFit::moved`);
+    // `shape`: its position and shape alone. A step that changes those by more than
+    // LINEAR_MOVE_MAX (a dot blurred by the flow against its prior) is not linear enough:
+    // fitted (the amplitude and the background enter the model linearly)
+    let (mut d, mut shape) = (l.step, l.step);
     for (k, &p) in kind.free().iter().enumerate() {
         if p == IB {
             d[k] = 0.0;
         }
-    }
-    // (a step that changes the dot's position and shape by more than LINEAR_MOVE_MAX, e.g. a
-    // dot blurred by the flow against its prior, is not linear enough: fitted; the amplitude
-    // and the background enter the model linearly)
-    let mut shape = d;
-    for (k, &p) in kind.free().iter().enumerate() {
-        if p == IA {
+        if p == IB || p == IA {
             shape[k] = 0.0;
         }
     }
@@ -1039,39 +1036,33 @@ impl<'a> Iteration<'a> {
             hood.apply(&next, &mut fits, self.cfg.sampling);
             let changed = next.iter().enumerate().filter(|(_, n)| n.is_some());
             links.refresh(self.seeds, &hood, changed.map(|(j, _)| j), &mut near);
-            // (in parallel: dropping the records replaced is a tenth of a pass on 2 threads)
-            let (refitted, stepped) = items
-                .par_iter_mut()
+            let mut refitted = 0;
+            for (((((it, n), k), last), o), &sel) in items
+                .iter_mut()
                 .zip(next)
                 .zip(&mut strikes)
                 .zip(&mut last_move)
                 .zip(&mut owed)
                 .zip(&select)
-                .with_min_len(256)
-                .map(|(((((it, n), k), last), o), &sel)| {
-                    if sel {
-                        *o = 0.0;
-                    }
-                    match n {
-                        Some(n) => {
-                            let stepped = usize::from(n.stepped);
-                            // (from pass 4 on: passes 1-3 start from the moments and loose fits)
-                            if passes >= 3 && n.moved > tol && n.moved >= *last {
-                                *k += 1;
-                            }
-                            *last = n.moved;
-                            *it = n;
-                            (1, stepped)
+            {
+                if sel {
+                    *o = 0.0;
+                }
+                match n {
+                    Some(n) => {
+                        linear_steps += usize::from(n.stepped);
+                        // (from pass 4 on: passes 1-3 start from the moments and loose fits)
+                        if passes >= 3 && n.moved > tol && n.moved >= *last {
+                            *k += 1;
                         }
-                        // not selected, or predicted to move by less than the tolerance
-                        None => {
-                            it.moved = 0.0;
-                            (0, 0)
-                        }
+                        *last = n.moved;
+                        *it = n;
+                        refitted += 1;
                     }
-                })
-                .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
-            linear_steps += stepped;
+                    // not selected, or predicted to move by less than the tolerance
+                    None => it.moved = 0.0,
+                }
+            }
             refits.push(refitted);
         }
     }
@@ -1266,41 +1257,36 @@ impl<'a> Iteration<'a> {
                             });
                         }
                     }
-                    if let Some(item) = check.map(|c| &c[i])
-                        && let Some(looked) = &item.looked
-                    {
-                        let l = look(&mut f.ws, &item.fit, looked, fkind, cfg.sampling, noise);
-                        if l.as_ref()
-                            .is_some_and(|l| l.moves <= cfg.neighbour_tolerance)
-                        {
+                    // a later pass: the look at the dot's last fit (left as it is below the
+                    // tolerance); a first pass from prior fits (a stack image, a gradient
+                    // frame): one Gauss-Newton step from the prior with its Fisher matrix (the
+                    // fit with the neighbours held, to second order)
+                    let from = match check.map(|c| &c[i]) {
+                        Some(item) => item.looked.as_deref().map(|l| {
+                            (
+                                item.fit,
+                                l,
+                                Some(cfg.neighbour_tolerance),
+                                item.looked.clone(),
+                            )
+                        }),
+                        None => steps
+                            .and_then(|l| l[i].as_ref())
+                            .filter(|_| !look_for)
+                            .map(|l| {
+                                let mut from = *own;
+                                from.index = s.index;
+                                from.flags = flags | s.flags;
+                                let keep = kind.looked_at.then(|| std::sync::Arc::new(l.clone()));
+                                (from, l, None, keep)
+                            }),
+                    };
+                    if let Some((from, looked, still, keep)) = from {
+                        let l = look(&mut f.ws, &from, looked, fkind, cfg.sampling, noise);
+                        if l.as_ref().zip(still).is_some_and(|(l, t)| l.moves <= t) {
                             return None;
                         }
                         if let Some(l) = l.filter(|l| l.moves <= LINEAR_STEP_MAX)
-                            && let Some(stepped) = linear_step(
-                                &f.ws,
-                                &item.fit,
-                                looked,
-                                item.looked.clone(),
-                                &l,
-                                fkind,
-                                cfg.sampling,
-                            )
-                        {
-                            return Some(stepped);
-                        }
-                    }
-                    // a first pass from prior fits (a stack image, a gradient frame): one
-                    // Gauss-Newton step from the prior with its Fisher matrix where it lands
-                    // within LINEAR_STEP_MAX (the fit with the neighbours held, to second order)
-                    if let Some(looked) = steps.and_then(|l| l[i].as_ref())
-                        && !look_for
-                    {
-                        let mut from = *own;
-                        from.index = s.index;
-                        from.flags = flags | s.flags;
-                        let keep = kind.looked_at.then(|| std::sync::Arc::new(looked.clone()));
-                        if let Some(l) = look(&mut f.ws, &from, looked, fkind, cfg.sampling, noise)
-                            .filter(|l| l.moves <= LINEAR_STEP_MAX)
                             && let Some(stepped) =
                                 linear_step(&f.ws, &from, looked, keep, &l, fkind, cfg.sampling)
                         {
@@ -1635,8 +1621,8 @@ impl Links {
             self.windows.near_unsorted(around(now), near);
             for &i in near.iter() {
                 let s = &seeds[i];
+                // (the rows the old model reached no longer hold j; no other row did)
                 if i != j && m.reaches(s.window) && !same_seed(s, &seeds[j]) {
-                    self.rows[i].retain(|&(k, _)| k as usize != j);
                     self.rows[i].push((j as u32, m.share_in(s.window)));
                 }
             }

@@ -399,6 +399,8 @@ pub(crate) struct Workspace {
     pub acc: [Vec<f64>; 3],
     /// Column accumulators of the point-sampled pass ([`simd::acc_len`]).
     pub cols: Vec<f64>,
+    /// The node factors' tables of the factored quadrature ([`fill_phi_integrated`]).
+    pub tables: Vec<f64>,
 }
 
 impl Workspace {
@@ -692,15 +694,24 @@ fn integrated_factored(
             v *= r;
         }
     };
-    // tables [node][index], node-major
-    let (mut tu, mut tp) = (Vec::with_capacity(m * w), Vec::with_capacity(m * w));
-    let (mut tv, mut tq) = (Vec::with_capacity(m * h), Vec::with_capacity(m * h));
+    // tables [node][index], node-major, in one buffer of the workspace (kept from dot to dot)
+    let tables = &mut ws.tables;
+    tables.clear();
     for &sk in nodes {
-        geometric(-a * sk * x_first - 0.5 * a * sk * sk, -a * sk, w, &mut tu);
-        geometric(-b * sk * x_first, -b * sk, w, &mut tp);
-        geometric(-c * sk * y_first - 0.5 * c * sk * sk, -c * sk, h, &mut tv);
-        geometric(-b * sk * y_first, -b * sk, h, &mut tq);
+        geometric(-a * sk * x_first - 0.5 * a * sk * sk, -a * sk, w, tables);
     }
+    for &sk in nodes {
+        geometric(-b * sk * x_first, -b * sk, w, tables);
+    }
+    for &sk in nodes {
+        geometric(-c * sk * y_first - 0.5 * c * sk * sk, -c * sk, h, tables);
+    }
+    for &sk in nodes {
+        geometric(-b * sk * y_first, -b * sk, h, tables);
+    }
+    let (tu, rest) = ws.tables.split_at(m * w);
+    let (tp, rest) = rest.split_at(m * w);
+    let (tv, tq) = rest.split_at(m * h);
     let mut t = [[0.0f64; FACTORED_MAX_NODES]; FACTORED_MAX_NODES];
     for k in 0..m {
         for l in 0..=k {

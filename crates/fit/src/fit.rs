@@ -554,28 +554,33 @@ impl Fitter {
     /// [`FitSampling::Auto`]: the pixel-blurred point model while the dot is wide enough, the
     /// pixel-integrated model from where it is not.
     fn solve_auto(&mut self, theta0: Theta, bounds: &Bounds, noise: &NoiseModel) -> Outcome {
-        if self.intermediate && conditional_sigma(&theta0) >= INTERMEDIATE_BLUR_SIGMA {
-            // an intermediate fit (a neighbour model and the start of the next pass, which
-            // fits the integrated model where the dot is narrow): the pixel-blurred point model
-            // down to INTERMEDIATE_BLUR_SIGMA, a fraction of the integrated model's cost
-            let mut blurred = pixel_blur(&theta0);
-            bounds.project(&mut blurred);
-            let out = self.solve_with(blurred, bounds, noise, Sampling::Point);
-            if out.status.is_ok()
-                && let Some(t) = pixel_unblur(&out.theta)
-            {
-                return Outcome { theta: t, ..out };
-            }
-        }
+        let start_sigma = conditional_sigma(&theta0);
+        // an intermediate fit (a neighbour model and the start of the next pass, which fits
+        // the integrated model where the dot is narrow) takes the pixel-blurred point model
+        // down to INTERMEDIATE_BLUR_SIGMA whatever width it ends at: a fraction of the
+        // integrated model's cost
+        let intermediate = self.intermediate && start_sigma >= INTERMEDIATE_BLUR_SIGMA;
         // the start (moments of a window that may truncate the dot) can under-state sigma: the
         // decision is taken at the solution, with a lower bar for trying the fast model
-        if conditional_sigma(&theta0) < 0.7 * AUTO_SIGMA {
+        if !intermediate && start_sigma < 0.7 * AUTO_SIGMA {
             return self.solve_with(theta0, bounds, noise, Sampling::Integrated);
         }
         let mut blurred = pixel_blur(&theta0);
         bounds.project(&mut blurred);
         let out = self.solve_with(blurred, bounds, noise, Sampling::Point);
         let sharp = pixel_unblur(&out.theta);
+        if intermediate {
+            if out.status.is_ok()
+                && let Some(t) = sharp
+            {
+                return Outcome { theta: t, ..out };
+            }
+            // (a blurred fit that failed or has no unblurred dot, from a start the final fit
+            // would not have tried it from)
+            if start_sigma < 0.7 * AUTO_SIGMA {
+                return self.solve_with(theta0, bounds, noise, Sampling::Integrated);
+            }
+        }
         match sharp {
             Some(t) if conditional_sigma(&t) >= AUTO_SIGMA => Outcome { theta: t, ..out },
             _ if !out.status.is_ok() => Outcome {

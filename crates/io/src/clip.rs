@@ -198,42 +198,6 @@ impl fmt::Display for ClipLevel {
 /// 2^52: below it, `x + 2^52` holds the integer nearest to `x ≥ 0` in its low 52 bits.
 const TWO_52: f64 = 4503599627370496.0;
 
-/// Of a block of samples: the largest finite sample, the OR of the finite samples (≥ 0, below
-/// 2^52: rounded to integers, in the low 52 bits; the caller redoes it otherwise) and how many
-/// are finite. Four independent lanes, selects instead of branches and float compares (the
-/// baseline x86-64 has no 64-bit integer compare in its vectors), so that the loop vectorises.
-fn scan(c: &[f64]) -> (f64, u64, usize) {
-    #[inline(always)]
-    fn lane(v: f64, max: &mut f64, or: &mut u64, n: &mut f64) {
-        // (false for NaN too)
-        let ok = v.abs() < f64::INFINITY;
-        let x = if ok { v } else { f64::NEG_INFINITY };
-        *max = if x > *max { x } else { *max };
-        let y = if ok && v > 0.0 { v } else { 0.0 };
-        let y = if y < TWO_52 { y } else { TWO_52 };
-        *or |= (y + TWO_52).to_bits();
-        *n += if ok { 1.0 } else { 0.0 };
-    }
-    let mut max = [f64::NEG_INFINITY; 4];
-    let mut or = [0u64; 4];
-    let mut n = [0.0f64; 4];
-    let mut lanes = c.chunks_exact(4);
-    for q in &mut lanes {
-        for l in 0..4 {
-            lane(q[l], &mut max[l], &mut or[l], &mut n[l]);
-        }
-    }
-    for &v in lanes.remainder() {
-        lane(v, &mut max[0], &mut or[0], &mut n[0]);
-    }
-    (
-        max[0].max(max[1]).max(max[2].max(max[3])),
-        or[0] | or[1] | or[2] | or[3],
-        // (exact: a block holds far fewer than 2^53 samples)
-        n.iter().sum::<f64>() as usize,
-    )
-}
-
 /// The clip level of `img` from its samples and, when known, the file's MaxSampleValue tag (see
 /// the module documentation for the rules).
 pub fn find_clip_level(img: &Image, max_sample_value: Option<f64>) -> ClipLevel {
@@ -249,26 +213,25 @@ fn clip_by_passes(img: &Image, max_sample_value: Option<f64>) -> ClipLevel {
     // One pass for the largest finite sample, the OR of the samples (their common power of
     // two) and the count of finite ones; the pile-up test one more, which also counts the
     // samples at the largest value, so that the clipped pixels need a pass of their own only
-    // for a level below the largest sample (a tag or a given level). The first pass is
-    // branch-free (`scan`) and the second branches only on the few samples just below the
-    // largest (issue 17: the filtered loops before took 53 M instructions per 1-MP image, 3 ×
-    // its decoding). Each pass runs over blocks of rows on the current rayon pool: the maximum,
-    // the OR and the counts do not depend on the order, so neither does the result.
-    let (max, or52, finite) = chunks().map(scan).reduce(
-        || (f64::NEG_INFINITY, 0u64, 0usize),
-        |a, b| (a.0.max(b.0), a.1 | b.1, a.2 + b.2),
-    );
-    let or: u64 = if max < TWO_52 {
-        or52 & ((1u64 << 52) - 1)
-    } else {
-        chunks()
-            .map(|c| {
-                c.iter()
-                    .filter(|v| v.is_finite())
-                    .fold(0u64, |o, &v| o | v.max(0.0) as u64)
-            })
-            .reduce(|| 0, |a, b| a | b)
-    };
+    // for a level below the largest sample (a tag or a given level). Unsigned images of up to
+    // 16 bits take the histogram instead (`histogram`: these passes took 53 M instructions per
+    // 1-MP image, 3 × its decoding). Each pass runs over blocks of rows on the current rayon
+    // pool: the maximum, the OR and the counts do not depend on the order, so neither does the
+    // result.
+    let (max, or, finite) = chunks()
+        .map(|c| {
+            let (mut max, mut or, mut n) = (f64::NEG_INFINITY, 0u64, 0usize);
+            for &v in c.iter().filter(|v| v.is_finite()) {
+                max = max.max(v);
+                or |= v.max(0.0) as u64;
+                n += 1;
+            }
+            (max, or, n)
+        })
+        .reduce(
+            || (f64::NEG_INFINITY, 0u64, 0usize),
+            |a, b| (a.0.max(b.0), a.1 | b.1, a.2 + b.2),
+        );
     let max_sample = max.is_finite().then_some(max);
     let meta = &img.meta;
     let container = match meta.sample_format {
@@ -331,7 +294,7 @@ const HISTOGRAM_CHUNK: usize = 1 << 18;
 
 /// The histogram of an unsigned-integer image of at most [`HISTOGRAM_BITS`] bits (one bin per
 /// sample value; `None` when a sample is not an integer in the container's range, or for other
-/// formats): one pass of ~6 instructions per pixel from which every rule of
+/// formats): one pass of ~17 instructions per pixel from which every rule of
 /// [`find_clip_level`] is read, instead of two passes over the samples as floats.
 fn histogram(img: &Image) -> Option<Vec<u32>> {
     let meta = &img.meta;

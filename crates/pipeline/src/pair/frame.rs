@@ -188,7 +188,7 @@ pub(crate) fn fit_match_timed(
             &ctx.noise,
             &prior,
             tails,
-            ctx.memory.as_ref(),
+            Some(&ctx.memory),
         )
         .map(|r| r.0),
         None => bostrack_fit::fit_dots(img, mask, &tracked.seeds, &plan.fit, &ctx.noise),

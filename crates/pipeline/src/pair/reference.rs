@@ -69,7 +69,7 @@ pub struct ReferenceContext {
     pub(crate) fits: Vec<DotFit>,
     /// What the reference's fits keep for the frames' first passes (scaled to a frame's noise
     /// for a stack-mean reference).
-    pub(crate) memory: Option<bostrack_fit::FitMemory>,
+    pub(crate) memory: bostrack_fit::FitMemory,
     /// The noise model of one camera frame (fits of gradient and stack images).
     pub(crate) noise: NoiseModel,
     pub(crate) noise_source: &'static str,
@@ -394,7 +394,7 @@ impl ReferenceContext {
             detection,
             stack_stats: vec![None; fits.len()],
             fits,
-            memory: Some(memory_for_frames(memory, &noise, &reference_noise)),
+            memory: memory_for_frames(memory, &noise, &reference_noise),
             noise,
             noise_source,
             reference_noise,
