@@ -1301,7 +1301,15 @@ impl<'a> Iteration<'a> {
                     let mut fit = if look_for {
                         f.fit_loaded_present(flags, s.centre, noise)?
                     } else {
-                        f.fit_loaded(flags, start, hint.as_ref(), noise)
+                        // (a full fit that failed in the pass before, when no median shape
+                        // was known to hold: the shape held first)
+                        f.held_first = matches!(
+                            own.status,
+                            FitStatus::Singular | FitStatus::LeftWindow | FitStatus::NonFinite
+                        );
+                        let fit = f.fit_loaded(flags, start, hint.as_ref(), noise);
+                        f.held_first = false;
+                        fit
                     };
                     fit.index = s.index;
                     fit.flags |= s.flags;

@@ -345,6 +345,14 @@ fn gl_compute(n: usize) -> (Vec<f64>, Vec<f64>) {
         nodes.push(0.5 * x);
         weights.push(1.0 / ((1.0 - x * x) * d * d));
     }
+    // exactly symmetric about the pixel's centre (the factored quadrature pairs s and −s)
+    for k in 0..n / 2 {
+        nodes[n - 1 - k] = -nodes[k];
+        weights[n - 1 - k] = weights[k];
+    }
+    if n % 2 == 1 {
+        nodes[n / 2] = 0.0;
+    }
     (nodes, weights)
 }
 
@@ -620,23 +628,18 @@ pub(crate) fn fill_phi_integrated(ws: &mut Workspace, theta: &Theta, kind: Kind)
     } else {
         gl_order(theta[IU].min(theta[IV]).exp())
     };
-    if order < FACTORED_MIN_NODES || !integrated_factored(ws, &s, x_first, y_first, order) {
+    if !integrated_factored(ws, &s, x_first, y_first, order) {
         integrated_by_nodes(ws, &s, x_first, y_first, order);
+        pixel_means_from_sums(ws, x_first, y_first);
     }
-    pixel_means_from_sums(ws, x_first, y_first);
 }
 
 /// Most Gauss-Legendre nodes per axis of [`integrated_factored`] (the rules go to 12).
-const FACTORED_MAX_NODES: usize = 12;
+const FACTORED_MAX_NODES: usize = simd::MAX_NODES;
 
-/// Fewest nodes per axis for which [`integrated_factored`] is used: below, the node grids
-/// (vectorised, `exp_grid`'s rows) cost as little (`bostrack locate` on bench/trackpy's σ 0.75
-/// scene, 5 nodes: 1.64 G instructions either way, 0.09-0.12 s; σ 0.3, 7-9 nodes: 4.64 against
-/// 8.50 G, 0.30 against 0.53 s).
-const FACTORED_MIN_NODES: usize = 6;
-
-/// The node sums of [`fill_phi_integrated`] (`S0` into `ws.e`, `Sx, Sy, Sxx, Sxy, Syy` into
-/// `ws.phi`) with the factor at every node split into parts of one or two indices:
+/// [`fill_phi_integrated`]'s pixel means of the basis (`φ̄0` into `ws.e`, `φ̄1..φ̄5` into
+/// `ws.phi`) from its node sums `S0, Sx, Sy, Sxx, Sxy, Syy` (as [`pixel_means_from_sums`]), with
+/// the factor at every node split into parts of one or two indices:
 /// with `X, Y` the pixel's centre and `s_k, s_l` the node offsets,
 ///
 /// `E(X + s_k, Y + s_l) = G(X, Y) · U(X, k) · V(Y, l) · P(X, l) · Q(k, Y) · T(k, l)`,
@@ -647,7 +650,10 @@ const FACTORED_MIN_NODES: usize = 6;
 /// are then `G αᵀ T β` with `α_k = w_k U Q`, `β_l = w_l V P` (and `α∘s`, `β∘s`, ...): ~110 exps
 /// per evaluation at 7 nodes per axis where one `exp_grid` per node pair took ~400, and one pass
 /// over the window instead of one per node pair (issue 17: the undersampled scene spent 66 % of
-/// its instructions in those grids). Same sums to rounding (test
+/// its instructions in those grids). The per-pixel sums `τ_n = T_n β` and `αᵀτ_n` run with the
+/// columns as SIMD lanes ([`simd::factored_sums`]): at every order, the σ 0.75 px scene's 5 nodes
+/// included (there the node grids had cost as much as the scalar sums; 1.28 → 1.03 G
+/// instructions for its `bostrack locate` with [`eval_general`]'s lanes). Same sums to rounding (test
 /// `factored_quadrature_equals_the_node_grids`). `false` (nothing written) where a factor could
 /// leave the normal floating-point range or the rule is longer than [`FACTORED_MAX_NODES`]: the
 /// caller sums the node grids ([`integrated_by_nodes`]).
@@ -686,79 +692,123 @@ fn integrated_factored(
         &mut ws.v,
         &mut ws.q,
     );
-    // per node: U and P along the columns (w values), V and Q along the rows (h values)
-    let geometric = |start: f64, step: f64, len: usize, out: &mut Vec<f64>| {
-        let (mut v, r) = (start.exp(), step.exp());
-        for _ in 0..len {
-            out.push(v);
-            v *= r;
+    // per node: U and P along the columns (w values), V and Q along the rows (h values), each
+    // `exp(−coef s_k (first + i) − [coef s_k²/2])` by a geometric recurrence; the rule is
+    // symmetric (`s_{m−1−k} = −s_k`), so the second half's start and ratio come from the
+    // first half's by a division (and `exp(−coef s_k²)` where the square term is there)
+    let geometric = |coef: f64, square: bool, first: f64, len: usize, out: &mut Vec<f64>| {
+        let (mut starts, mut ratios) = ([0.0f64; FACTORED_MAX_NODES], [0.0f64; FACTORED_MAX_NODES]);
+        for (k, &sk) in nodes.iter().enumerate() {
+            let mirror = m - 1 - k;
+            let (start, ratio) = if sk == 0.0 {
+                (1.0, 1.0)
+            } else if mirror < k {
+                let q = if square { (-coef * sk * sk).exp() } else { 1.0 };
+                (q / starts[mirror], 1.0 / ratios[mirror])
+            } else {
+                let sq = if square { 0.5 * coef * sk * sk } else { 0.0 };
+                ((-coef * sk * first - sq).exp(), (-coef * sk).exp())
+            };
+            (starts[k], ratios[k]) = (start, ratio);
+            let mut v = start;
+            for _ in 0..len {
+                out.push(v);
+                v *= ratio;
+            }
         }
     };
     // tables [node][index], node-major, in one buffer of the workspace (kept from dot to dot)
     let tables = &mut ws.tables;
     tables.clear();
-    for &sk in nodes {
-        geometric(-a * sk * x_first - 0.5 * a * sk * sk, -a * sk, w, tables);
-    }
-    for &sk in nodes {
-        geometric(-b * sk * x_first, -b * sk, w, tables);
-    }
-    for &sk in nodes {
-        geometric(-c * sk * y_first - 0.5 * c * sk * sk, -c * sk, h, tables);
-    }
-    for &sk in nodes {
-        geometric(-b * sk * y_first, -b * sk, h, tables);
-    }
-    let (tu, rest) = ws.tables.split_at(m * w);
-    let (tp, rest) = rest.split_at(m * w);
-    let (tv, tq) = rest.split_at(m * h);
-    let mut t = [[0.0f64; FACTORED_MAX_NODES]; FACTORED_MAX_NODES];
-    for k in 0..m {
-        for l in 0..=k {
-            let e = (-b * nodes[k] * nodes[l]).exp();
-            t[k][l] = e;
-            t[l][k] = e;
+    geometric(a, true, x_first, w, tables);
+    geometric(b, false, x_first, w, tables);
+    geometric(c, true, y_first, h, tables);
+    geometric(b, false, y_first, h, tables);
+    // the coupling matrices T (exp(−b s_k s_l)), T·diag(s), T·diag(s²), row-major, after the
+    // tables
+    // the coupling of the nodes: T = exp(−b s_k s_l) and T s_l, T s_l² (m × m), or where the
+    // products stay small, cosh/sinh over the pairs ±s of the symmetric rule (half the work)
+    let half = m / 2;
+    let symmetric = m > 1 && b.abs() * nodes[0] * nodes[0] <= SYMMETRIC_MAX_X;
+    let t_at = tables.len();
+    if symmetric {
+        tables.resize(t_at + 6 * half * half, 0.0);
+        let mats = &mut tables[t_at..];
+        for k in 0..half {
+            for l in 0..half {
+                let (sl, at) = (nodes[l], k * half + l);
+                // (one expm1: sinh x = (e + e/(1+e))/2, cosh x = sinh x + 1/(1+e), e = eˣ − 1,
+                // accurate for small x)
+                let e = (b * nodes[k] * sl).exp_m1();
+                let sh = 0.5 * (e + e / (1.0 + e));
+                let (c, d) = (sh + 1.0 / (1.0 + e), -sh);
+                let n2 = half * half;
+                mats[at] = c;
+                mats[n2 + at] = d;
+                mats[2 * n2 + at] = c * sl;
+                mats[3 * n2 + at] = d * sl;
+                mats[4 * n2 + at] = c * sl * sl;
+                mats[5 * n2 + at] = d * sl * sl;
+            }
+        }
+    } else {
+        tables.resize(t_at + 3 * m * m, 0.0);
+        let (t0, t12) = tables[t_at..].split_at_mut(m * m);
+        for k in 0..m {
+            for l in 0..=k {
+                let e = (-b * nodes[k] * nodes[l]).exp();
+                t0[k * m + l] = e;
+                t0[l * m + k] = e;
+            }
+        }
+        let (t1, t2) = t12.split_at_mut(m * m);
+        for (at, &e) in t0.iter().enumerate() {
+            let sl = nodes[at % m];
+            t1[at] = e * sl;
+            t2[at] = e * sl * sl;
         }
     }
-    let [sx_, sy_, sxx, sxy, syy] = &mut ws.phi;
-    for j in 0..h {
-        for i in 0..w {
-            let px = j * w + i;
-            let (mut al, mut be) = ([0.0f64; FACTORED_MAX_NODES], [0.0f64; FACTORED_MAX_NODES]);
-            for k in 0..m {
-                al[k] = weights[k] * tu[k * w + i] * tq[k * h + j];
-                be[k] = weights[k] * tv[k * h + j] * tp[k * w + i];
-            }
-            // τ0 = T β, τ1 = T (β∘s), τ2 = T (β∘s²), then the six sums over k
-            let (mut s0, mut sx, mut sxx_, mut sy, mut sxy_, mut syy_) =
-                (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
-            for k in 0..m {
-                let (mut t0, mut t1, mut t2) = (0.0, 0.0, 0.0);
-                for l in 0..m {
-                    let tb = t[k][l] * be[l];
-                    t0 += tb;
-                    t1 += tb * nodes[l];
-                    t2 += tb * nodes[l] * nodes[l];
-                }
-                let (ak, ask) = (al[k], al[k] * nodes[k]);
-                s0 += ak * t0;
-                sx += ask * t0;
-                sxx_ += ask * nodes[k] * t0;
-                sy += ak * t1;
-                sxy_ += ask * t1;
-                syy_ += ak * t2;
-            }
-            let g = ws.tmp[px];
-            ws.e[px] = g * s0;
-            sx_[px] = g * sx;
-            sxx[px] = g * sxx_;
-            sy_[px] = g * sy;
-            sxy[px] = g * sxy_;
-            syy[px] = g * syy_;
-        }
+    // the weights into the row tables (α's and β's row factors)
+    let (cols, rest) = ws.tables.split_at_mut(2 * m * w);
+    let (tu, tp) = cols.split_at(m * w);
+    let (rows, t) = rest.split_at_mut(2 * m * h);
+    let (tv, tq) = rows.split_at_mut(m * h);
+    for (k, &wk) in weights.iter().enumerate() {
+        tv[k * h..(k + 1) * h].iter_mut().for_each(|v| *v *= wk);
+        tq[k * h..(k + 1) * h].iter_mut().for_each(|v| *v *= wk);
     }
+    let coupling = if symmetric {
+        let n2 = half * half;
+        simd::Coupling::Symmetric(std::array::from_fn(|q| &t[q * n2..(q + 1) * n2]))
+    } else {
+        simd::Coupling::Full(std::array::from_fn(|q| &t[q * m * m..(q + 1) * m * m]))
+    };
+    let [p1, p2, p3, p4, p5] = &mut ws.phi;
+    simd::factored_sums(
+        simd::arch(),
+        simd::FactoredSums {
+            nodes,
+            u: tu,
+            p: tp,
+            aq: tq,
+            bv: tv,
+            coupling,
+            g: &ws.tmp,
+            w,
+            h,
+            x_first,
+            y_first,
+            s0: &mut ws.e,
+            out: [p1, p2, p3, p4, p5],
+        },
+    );
     true
 }
+
+/// Largest `|b| s²` (over the rule's outermost node) for which [`integrated_factored`] pairs the
+/// nodes ([`simd::Coupling::Symmetric`]): the cancellation in `cosh x − sinh x` then costs at
+/// most a factor `e⁴` of the relative precision (~1e-14).
+const SYMMETRIC_MAX_X: f64 = 2.0;
 
 /// [`fill_phi_integrated`]'s node sums by one [`exp_grid`] per node pair.
 fn integrated_by_nodes(ws: &mut Workspace, s: &Shape, x_first: f64, y_first: f64, order: usize) {
@@ -875,44 +925,36 @@ pub(crate) fn fill_phi(ws: &mut Workspace, theta: &Theta, sampling: Sampling, ki
     }
 }
 
-/// Generic pass from the per-pixel basis in ws.e / ws.phi: direct accumulation of G = Σ w φ φᵀ.
+/// Generic pass from the per-pixel basis in ws.e / ws.phi: G = Σ w φ φᵀ accumulated with the
+/// columns as SIMD lanes ([`simd::basis_sums`]; issue 17: 9.5 % of the σ 0.75 px scene's
+/// instructions as a scalar loop, 0.6 % now).
 pub(crate) fn eval_general(ws: &mut Workspace, theta: &Theta, noise: &NoiseModel) -> Pass {
-    let n = ws.len();
-    let (amp, bg) = (theta[IA], theta[IB]);
     let variable = !noise.is_constant();
     let inv_var = 1.0 / noise.variance(f64::NEG_INFINITY);
-    let mut g = [0.0f64; 28];
-    let mut grad = [0.0f64; 7];
-    let (mut cost, mut ssr) = (0.0, 0.0);
     let [p1, p2, p3, p4, p5] = &ws.phi;
-    for k in 0..n {
-        let f = [ws.e[k], p1[k], p2[k], p3[k], p4[k], p5[k]];
-        let mu = bg + amp * f[0];
-        let r = ws.data[k] - mu;
-        let kp = ws.keep[k];
-        let wni = if variable { ws.w_cur[k] } else { kp };
-        cost += wni * r * r;
-        ssr += kp * r * r;
-        let wr = wni * r;
-        // the constant basis function φ6 = 1
-        g[27] += wni;
-        grad[6] += wr;
-        let mut idx = 0;
-        for b in 0..6 {
-            let wf = wni * f[b];
-            grad[b] += wf * r;
-            for c in b..6 {
-                g[idx] += wf * f[c];
-                idx += 1;
-            }
-            g[21 + b] += wf;
-        }
-    }
+    let inp = simd::BasisIn {
+        phi: [&ws.e, p1, p2, p3, p4, p5],
+        d: &ws.data,
+        keep: &ws.keep,
+        // (constant noise: the weights are `keep`, the sums scaled by 1/variance after)
+        wt: if variable { &ws.w_cur } else { &ws.keep },
+        w: ws.w,
+        h: ws.h,
+        amp: theta[IA],
+        bg: theta[IB],
+    };
+    let simd::BasisSums {
+        gram: mut g,
+        mut grad,
+        mut cost,
+        ssr,
+    } = simd::basis_sums(simd::arch(), &inp, &mut ws.cols);
     if !variable {
         g.iter_mut().for_each(|v| *v *= inv_var);
         grad.iter_mut().for_each(|v| *v *= inv_var);
         cost *= inv_var;
     }
+    // g: the 6 × 6 upper triangle in row order, then Σ w φ_b (21..27), Σ w (27)
     let mut gram = [[0.0; 7]; 7];
     let mut idx = 0;
     for b in 0..6 {
@@ -1352,7 +1394,7 @@ mod tests {
     #[test]
     fn factored_quadrature_equals_the_node_grids() {
         let mut worst: f64 = 0.0;
-        let mut cases = 0;
+        let (mut cases, mut paired) = (0, 0);
         for order in 1..=12 {
             for (sx, sy, rho) in [
                 (0.3, 0.45, 0.6),
@@ -1380,6 +1422,11 @@ mod tests {
                         continue;
                     }
                     integrated_by_nodes(&mut b, &s, x_first, y_first, order);
+                    pixel_means_from_sums(&mut b, x_first, y_first);
+                    let (nodes, _) = gl_rule(order);
+                    if order > 1 && s.b.abs() * nodes[0] * nodes[0] <= SYMMETRIC_MAX_X {
+                        paired += 1;
+                    }
                     let n = ww * hh;
                     let peak = b.e[..n].iter().fold(0.0f64, |m, v| m.max(v.abs()));
                     let mut d = (0..n).map(|k| (a.e[k] - b.e[k]).abs()).fold(0.0, f64::max);
@@ -1393,8 +1440,12 @@ mod tests {
                 }
             }
         }
-        println!("{cases} cases, worst difference {worst:e} of the peak");
+        println!(
+            "{cases} cases ({paired} with the nodes paired), worst difference {worst:e} of the peak"
+        );
         assert!(cases > 100 && worst < 1e-12, "{cases} {worst:e}");
+        // both couplings of the nodes were compared
+        assert!(paired > 20 && cases - paired > 20, "{cases} {paired}");
         // a very narrow dot far from the window's centre: the node grids
         let th = theta_from_gaussian(&Gaussian2D {
             x0: 30.0,

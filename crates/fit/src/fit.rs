@@ -63,6 +63,13 @@ pub struct Fitter {
     pub(crate) intermediate: bool,
     /// The start is a fit of the same dot (weights there are right): no reweighting check.
     pub(crate) warm: bool,
+    /// The solve under way starts from a fit of the dot (its hint), whose sigma is the dot's
+    /// own, not a window's moments: `auto` sampling decides at that sigma.
+    fitted_start: bool,
+    /// The dot's full fit failed in the pass before (singular, left its window, not finite):
+    /// the next fit holds the shape first (at [`Fitter::fixed_shape`]), and fits all
+    /// parameters only where that finds no dot.
+    pub(crate) held_first: bool,
     /// What the last least-squares fit of this fitter left beside its record.
     pub(crate) last: LastFit,
     /// The shape (σx, σy, ρ) at which a least-squares fit that fails (singular, left its window, not finite) is fitted again
@@ -135,6 +142,8 @@ impl Fitter {
             ws: Workspace::default(),
             intermediate: false,
             warm: false,
+            fitted_start: false,
+            held_first: false,
             last: LastFit::default(),
             fixed_shape: None,
         }
@@ -309,37 +318,23 @@ impl Fitter {
                 Err(status) => failed(status, flags, nan_params(start)),
             },
             Estimator::Lsg => {
-                let theta0 = self.start_theta(start, hint, &bounds);
-                let mut out = self.solve(theta0, &bounds, noise);
-                if hint.is_some() && !out.status.is_ok() {
-                    // a warm start that went wrong: once more from the moments
-                    let theta0 = self.start_theta(start, None, &bounds);
-                    let again = self.solve(theta0, &bounds, noise);
-                    out = Outcome {
-                        iterations: out.iterations + again.iterations,
-                        ..again
-                    };
-                }
-                let mut shape_fixed = false;
-                if matches!(
-                    out.status,
-                    FitStatus::Singular | FitStatus::LeftWindow | FitStatus::NonFinite
-                ) && let Some(shape) = self.fixed_shape
-                    && let Some(again) = self.solve_fixed_shape(
+                // a dot whose full fit failed before: its shape held first (issue 17: at σ
+                // 0.3 px half the dots' full fits fail, each after ~12 iterations, twice)
+                let held = match self.fixed_shape {
+                    Some(shape) if self.held_first => self.solve_fixed_shape(
                         start,
                         hint,
                         &bounds,
                         noise,
                         shape,
                         FIXED_SHAPE_MIN_Z,
-                    )
-                {
-                    out = Outcome {
-                        iterations: out.iterations + again.iterations,
-                        ..again
-                    };
-                    shape_fixed = true;
-                }
+                    ),
+                    _ => None,
+                };
+                let (out, shape_fixed) = match held {
+                    Some(out) => (out, true),
+                    None => self.solve_free(start, hint, &bounds, noise),
+                };
                 let kind = if shape_fixed {
                     Kind::FixedShape
                 } else {
@@ -473,6 +468,45 @@ impl Fitter {
         out.status.is_ok().then_some(z)
     }
 
+    /// The least-squares fit with every parameter free, from `hint` (or the start's moments,
+    /// and from those again where the hint's fit fails); where that is singular, leaves its
+    /// window or is not finite, with the shape held at [`Fitter::fixed_shape`] (`true`: held).
+    fn solve_free(
+        &mut self,
+        start: [f64; 2],
+        hint: Option<&Gaussian2D>,
+        bounds: &Bounds,
+        noise: &NoiseModel,
+    ) -> (Outcome, bool) {
+        let theta0 = self.start_theta(start, hint, bounds);
+        self.fitted_start = hint.is_some();
+        let mut out = self.solve(theta0, bounds, noise);
+        self.fitted_start = false;
+        if hint.is_some() && !out.status.is_ok() {
+            // a warm start that went wrong: once more from the moments
+            let theta0 = self.start_theta(start, None, bounds);
+            let again = self.solve(theta0, bounds, noise);
+            out = Outcome {
+                iterations: out.iterations + again.iterations,
+                ..again
+            };
+        }
+        if matches!(
+            out.status,
+            FitStatus::Singular | FitStatus::LeftWindow | FitStatus::NonFinite
+        ) && let Some(shape) = self.fixed_shape
+            && let Some(again) =
+                self.solve_fixed_shape(start, hint, bounds, noise, shape, FIXED_SHAPE_MIN_Z)
+        {
+            let out = Outcome {
+                iterations: out.iterations + again.iterations,
+                ..again
+            };
+            return (out, true);
+        }
+        (out, false)
+    }
+
     /// A least-squares fit of `kind` (`FixedShape` or `Linear`) from the start's moments (or
     /// `hint`) with the shape set to `shape` (σx, σy, ρ) and, with `at`, the centre there; the
     /// outcome and its amplitude in standard deviations (`None`: no amplitude variance).
@@ -561,8 +595,18 @@ impl Fitter {
         // integrated model's cost
         let intermediate = self.intermediate && start_sigma >= INTERMEDIATE_BLUR_SIGMA;
         // the start (moments of a window that may truncate the dot) can under-state sigma: the
-        // decision is taken at the solution, with a lower bar for trying the fast model
-        if !intermediate && start_sigma < 0.7 * AUTO_SIGMA {
+        // decision is taken at the solution, with a lower bar for trying the fast model; a
+        // held shape (a ghost's linear fit, a fit with its shape fixed) ends at its start's
+        // sigma, and a start that is a fit of the dot (the pass before) is at its sigma, so
+        // the decision is taken there (issue 17: the σ 0.75 px scene's final pass fitted the
+        // blurred model again, then the integrated one from its answer; its ghosts likewise)
+        let held = matches!(self.kind, Kind::Linear | Kind::FixedShape);
+        let bar = if held || self.fitted_start {
+            AUTO_SIGMA
+        } else {
+            0.7 * AUTO_SIGMA
+        };
+        if !intermediate && start_sigma < bar {
             return self.solve_with(theta0, bounds, noise, Sampling::Integrated);
         }
         let mut blurred = pixel_blur(&theta0);

@@ -23,6 +23,26 @@ pub(crate) fn arch() -> Arch {
     })
 }
 
+/// The lanes of `s` (a full vector, or fewer values at the window's last columns).
+#[inline(always)]
+fn load_lanes<S: Simd>(simd: S, s: &[f64]) -> S::f64s {
+    if s.len() == S::F64_LANES {
+        S::as_simd_f64s(s).0[0]
+    } else {
+        simd.partial_load_f64s(s)
+    }
+}
+
+/// `v` into `o` (a full vector, or its first lanes at the window's last columns).
+#[inline(always)]
+fn store_lanes<S: Simd>(simd: S, o: &mut [f64], v: S::f64s) {
+    if o.len() == S::F64_LANES {
+        S::as_mut_simd_f64s(o).0[0] = v;
+    } else {
+        simd.partial_store_f64s(o, v);
+    }
+}
+
 /// Widest lane count of any path (sizes the column accumulators).
 pub(crate) const MAX_LANES: usize = 8;
 /// Column accumulators per window column: `Σ_rows w E² Yⁿ` (n = 0..4), `Σ w E Yⁿ` (0..2),
@@ -65,9 +85,9 @@ pub(crate) fn point_moments(arch: Arch, inp: &MomentsIn, acc: &mut [f64]) -> Mom
     arch.dispatch(MomentsKernel { inp, acc })
 }
 
-/// Scratch length [`point_moments`] needs for a window `w` columns wide.
+/// Scratch length [`point_moments`] and [`basis_sums`] need for a window `w` columns wide.
 pub(crate) fn acc_len(w: usize) -> usize {
-    w.div_ceil(MAX_LANES) * MAX_LANES * N_ACC
+    w.div_ceil(MAX_LANES) * MAX_LANES * N_ACC.max(N_BASIS)
 }
 
 struct MomentsKernel<'a, 'b> {
@@ -98,15 +118,8 @@ impl WithSimd for MomentsKernel<'_, '_> {
         // column group after column group, every row in order, the sums in registers
         for k in 0..nch {
             let c0 = k * lanes;
-            let full = c0 + lanes <= w;
-            let load = |a: &[f64], j: usize| {
-                let s = &a[j * w + c0..j * w + (c0 + lanes).min(w)];
-                if full {
-                    S::as_simd_f64s(s).0[0]
-                } else {
-                    simd.partial_load_f64s(s)
-                }
-            };
+            let load =
+                |a: &[f64], j: usize| load_lanes(simd, &a[j * w + c0..j * w + (c0 + lanes).min(w)]);
             let zero = simd.splat_f64s(0.0);
             let mut t = [zero; N_ACC];
             for j in 0..h {
@@ -251,6 +264,348 @@ impl WithSimd for ExpRows<'_> {
     }
 }
 
+/// Column accumulators of [`basis_sums`]: `Σ w φ_b φ_c` (b ≤ c < 6: 21), `Σ w φ_b` (6),
+/// `Σ w`, `Σ w r φ_b` (6), `Σ w r`, `Σ w r²`, `Σ keep r²`.
+const N_BASIS: usize = 37;
+
+/// The sums of one pass over a per-pixel basis (the pixel-integrated model): `gram` the upper
+/// triangle of `Σ w φφᵀ` over `φ = (φ0..φ5, 1)` in row order (28 values), `grad = Σ w r φ`,
+/// `cost = Σ w r²`, `ssr = Σ keep r²`.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub(crate) struct BasisSums {
+    pub gram: [f64; 28],
+    pub grad: [f64; 7],
+    pub cost: f64,
+    pub ssr: f64,
+}
+
+/// Inputs of [`basis_sums`]: row-major `w × h` arrays of the basis `φ0..φ5`, the data, `keep`
+/// and the weights; the model is `bg + amp·φ0`.
+pub(crate) struct BasisIn<'a> {
+    pub phi: [&'a [f64]; 6],
+    pub d: &'a [f64],
+    pub keep: &'a [f64],
+    pub wt: &'a [f64],
+    pub w: usize,
+    pub h: usize,
+    pub amp: f64,
+    pub bg: f64,
+}
+
+/// The sums of a pass over a per-pixel basis on the given path (columns as lanes, each
+/// column's sums over the rows in order, the columns folded in order: the same bits on every
+/// path); `acc` is scratch of at least [`acc_len`]`(w)` values.
+pub(crate) fn basis_sums(arch: Arch, inp: &BasisIn, acc: &mut [f64]) -> BasisSums {
+    arch.dispatch(BasisKernel { inp, acc })
+}
+
+struct BasisKernel<'a, 'b> {
+    inp: &'a BasisIn<'b>,
+    acc: &'a mut [f64],
+}
+
+impl WithSimd for BasisKernel<'_, '_> {
+    type Output = BasisSums;
+
+    #[inline(always)]
+    fn with_simd<S: Simd>(self, simd: S) -> BasisSums {
+        let BasisIn {
+            phi,
+            d,
+            keep,
+            wt,
+            w,
+            h,
+            amp,
+            bg,
+        } = *self.inp;
+        let lanes = S::F64_LANES;
+        let nch = w.div_ceil(lanes);
+        let (vamp, vbg) = (simd.splat_f64s(amp), simd.splat_f64s(bg));
+        for k in 0..nch {
+            let c0 = k * lanes;
+            let load =
+                |a: &[f64], j: usize| load_lanes(simd, &a[j * w + c0..j * w + (c0 + lanes).min(w)]);
+            let zero = simd.splat_f64s(0.0);
+            let mut t = [zero; N_BASIS];
+            for j in 0..h {
+                let f = [
+                    load(phi[0], j),
+                    load(phi[1], j),
+                    load(phi[2], j),
+                    load(phi[3], j),
+                    load(phi[4], j),
+                    load(phi[5], j),
+                ];
+                let (di, ki, wi) = (load(d, j), load(keep, j), load(wt, j));
+                let r = simd.sub_f64s(di, simd.add_f64s(vbg, simd.mul_f64s(vamp, f[0])));
+                let wr = simd.mul_f64s(wi, r);
+                let mut idx = 0;
+                for b in 0..6 {
+                    let wf = simd.mul_f64s(wi, f[b]);
+                    for &fc in &f[b..] {
+                        t[idx] = simd.add_f64s(t[idx], simd.mul_f64s(wf, fc));
+                        idx += 1;
+                    }
+                    t[21 + b] = simd.add_f64s(t[21 + b], wf);
+                    t[28 + b] = simd.add_f64s(t[28 + b], simd.mul_f64s(wf, r));
+                }
+                t[27] = simd.add_f64s(t[27], wi);
+                t[34] = simd.add_f64s(t[34], wr);
+                t[35] = simd.add_f64s(t[35], simd.mul_f64s(wr, r));
+                t[36] = simd.add_f64s(t[36], simd.mul_f64s(simd.mul_f64s(ki, r), r));
+            }
+            let out = &mut self.acc[k * N_BASIS * lanes..(k + 1) * N_BASIS * lanes];
+            let (out, _) = S::as_mut_simd_f64s(out);
+            out.copy_from_slice(&t);
+        }
+        let mut out = BasisSums::default();
+        for (k, a) in self.acc[..nch * N_BASIS * lanes]
+            .chunks_exact(N_BASIS * lanes)
+            .enumerate()
+        {
+            for l in 0..lanes.min(w - k * lanes) {
+                let c = |q: usize| a[q * lanes + l];
+                for (q, g) in out.gram.iter_mut().enumerate() {
+                    *g += c(q);
+                }
+                for (q, g) in out.grad.iter_mut().enumerate() {
+                    *g += c(28 + q);
+                }
+                out.cost += c(35);
+                out.ssr += c(36);
+            }
+        }
+        out
+    }
+}
+
+/// Most quadrature nodes per axis of [`factored_sums`].
+pub(crate) const MAX_NODES: usize = 12;
+
+/// The coupling of the x and y nodes in [`FactoredSums`].
+pub(crate) enum Coupling<'a> {
+    /// `T_n[k][l] = T[k][l] s_l^n` (n = 0, 1, 2) with `T[k][l] = exp(−b s_k s_l)`: `m × m`,
+    /// row-major.
+    Full([&'a [f64]; 3]),
+    /// For a rule symmetric about 0 (`s_{m−1−k} = −s_k`, the first `P = ⌊m/2⌋` nodes positive,
+    /// a centre node 0 where `m` is odd): with `x = b s_k s_l` over the positive nodes, `C = cosh
+    /// x`, `D = −sinh x` and `C s_l, D s_l, C s_l², D s_l²`, each `P × P`, row-major. Half the
+    /// products of [`Coupling::Full`]; for `|x| ≤ 2` only (`C + D = e^{−x}` loses up to `e^{2|x|}`
+    /// of the relative precision to cancellation).
+    Symmetric([&'a [f64]; 6]),
+}
+
+/// Inputs of [`factored_sums`] (the factored quadrature of `eval::integrated_factored`): with
+/// `m` nodes `s_k`, per pixel `(i, j)` the sums `S0 = g Σ_k α_k τ0_k`, `Sx = g Σ α_k s_k τ0_k`,
+/// `Sxx = g Σ α_k s_k² τ0_k`, `Sy = g Σ α_k τ1_k`, `Sxy = g Σ α_k s_k τ1_k`,
+/// `Syy = g Σ α_k τ2_k`, where `α_k = aq[k][j] · u[k][i]`, `β_l = bv[l][j] · p[l][i]` and
+/// `τn_k = Σ_l T[k][l] s_l^n β_l`. Tables are node-major (`u[k * w + i]`, `aq[k * h + j]`);
+/// `g` and the outputs are row-major `w × h`. The outputs are the pixel means of the basis
+/// (`φ̄0 = S0, φ̄1 = X S0 + Sx, φ̄2 = Y S0 + Sy, φ̄3 = X² S0 + 2X Sx + Sxx`,
+/// `φ̄4 = XY S0 + X Sy + Y Sx + Sxy, φ̄5 = Y² S0 + 2Y Sy + Syy`), the first column and row at
+/// `X = x_first`, `Y = y_first`.
+pub(crate) struct FactoredSums<'a> {
+    pub nodes: &'a [f64],
+    pub u: &'a [f64],
+    pub p: &'a [f64],
+    pub aq: &'a [f64],
+    pub bv: &'a [f64],
+    pub coupling: Coupling<'a>,
+    pub g: &'a [f64],
+    pub w: usize,
+    pub h: usize,
+    pub x_first: f64,
+    pub y_first: f64,
+    /// `φ̄0`, then `φ̄1..φ̄5`.
+    pub s0: &'a mut [f64],
+    pub out: [&'a mut [f64]; 5],
+}
+
+/// The per-pixel sums of [`FactoredSums`] on the given path.
+pub(crate) fn factored_sums(arch: Arch, sums: FactoredSums) {
+    arch.dispatch(sums)
+}
+
+impl WithSimd for FactoredSums<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: Simd>(self, simd: S) {
+        // (the node count a constant: the loops over the nodes unrolled, β in registers)
+        match self.nodes.len() {
+            1 => factored_rows::<S, 1>(simd, self),
+            2 => factored_rows::<S, 2>(simd, self),
+            3 => factored_rows::<S, 3>(simd, self),
+            4 => factored_rows::<S, 4>(simd, self),
+            5 => factored_rows::<S, 5>(simd, self),
+            6 => factored_rows::<S, 6>(simd, self),
+            7 => factored_rows::<S, 7>(simd, self),
+            8 => factored_rows::<S, 8>(simd, self),
+            9 => factored_rows::<S, 9>(simd, self),
+            10 => factored_rows::<S, 10>(simd, self),
+            11 => factored_rows::<S, 11>(simd, self),
+            _ => factored_rows::<S, MAX_NODES>(simd, self),
+        }
+    }
+}
+
+/// The six node sums `S0, Sx, Sy, Sxx, Sxy, Syy` of one row's lanes from `β` (`M` vectors)
+/// and `α_k` (by `alpha(k)`).
+#[inline(always)]
+fn node_sums<S: Simd, const M: usize>(
+    simd: S,
+    nodes: &[f64],
+    coupling: &Coupling,
+    be: &[S::f64s; M],
+    alpha: impl Fn(usize) -> S::f64s,
+) -> [S::f64s; 6] {
+    let zero = simd.splat_f64s(0.0);
+    let (add, mul) = (|a, b| simd.add_f64s(a, b), |a, b| simd.mul_f64s(a, b));
+    let sp = |v: f64| simd.splat_f64s(v);
+    let mut acc = [zero; 6];
+    match coupling {
+        Coupling::Full([t0, t1, t2]) => {
+            let (t0, t1, t2) = (&t0[..M * M], &t1[..M * M], &t2[..M * M]);
+            for k in 0..M {
+                let (mut v0, mut v1, mut v2) = (zero, zero, zero);
+                for (l, &b) in be.iter().enumerate() {
+                    let at = k * M + l;
+                    v0 = add(v0, mul(sp(t0[at]), b));
+                    v1 = add(v1, mul(sp(t1[at]), b));
+                    v2 = add(v2, mul(sp(t2[at]), b));
+                }
+                let sk = sp(nodes[k]);
+                let al = alpha(k);
+                let als = mul(al, sk);
+                let alss = mul(als, sk);
+                acc[0] = add(acc[0], mul(al, v0));
+                acc[1] = add(acc[1], mul(als, v0));
+                acc[2] = add(acc[2], mul(al, v1));
+                acc[3] = add(acc[3], mul(alss, v0));
+                acc[4] = add(acc[4], mul(als, v1));
+                acc[5] = add(acc[5], mul(al, v2));
+            }
+        }
+        Coupling::Symmetric([c, d, cs, ds, css, dss]) => {
+            let half = M / 2;
+            // β± over the node pairs (l, M−1−l), and the centre's β
+            let mut bp = [zero; M];
+            let mut bm = [zero; M];
+            for l in 0..half {
+                bp[l] = add(be[l], be[M - 1 - l]);
+                bm[l] = simd.sub_f64s(be[l], be[M - 1 - l]);
+            }
+            let bc = if M % 2 == 1 { be[half] } else { zero };
+            for k in 0..half {
+                let (mut a0, mut b0, mut a1, mut b1, mut a2, mut b2) =
+                    (bc, zero, zero, zero, zero, zero);
+                for l in 0..half {
+                    let at = k * half + l;
+                    a0 = add(a0, mul(sp(c[at]), bp[l]));
+                    b0 = add(b0, mul(sp(d[at]), bm[l]));
+                    a1 = add(a1, mul(sp(cs[at]), bm[l]));
+                    b1 = add(b1, mul(sp(ds[at]), bp[l]));
+                    a2 = add(a2, mul(sp(css[at]), bp[l]));
+                    b2 = add(b2, mul(sp(dss[at]), bm[l]));
+                }
+                let (ak, ak2) = (alpha(k), alpha(M - 1 - k));
+                let (ap, am) = (add(ak, ak2), simd.sub_f64s(ak, ak2));
+                let sk = sp(nodes[k]);
+                let e0 = add(mul(ap, a0), mul(am, b0));
+                acc[0] = add(acc[0], e0);
+                acc[1] = add(acc[1], mul(sk, add(mul(am, a0), mul(ap, b0))));
+                acc[2] = add(acc[2], add(mul(ap, a1), mul(am, b1)));
+                acc[3] = add(acc[3], mul(mul(sk, sk), e0));
+                acc[4] = add(acc[4], mul(sk, add(mul(am, a1), mul(ap, b1))));
+                acc[5] = add(acc[5], add(mul(ap, a2), mul(am, b2)));
+            }
+            if M % 2 == 1 {
+                // the centre node (s = 0, T = 1 along its row): τ0 = Σ β, τ1 = Σ s β, τ2 = Σ s² β
+                let (mut v0, mut v1, mut v2) = (bc, zero, zero);
+                for l in 0..half {
+                    let sl = nodes[l];
+                    v0 = add(v0, bp[l]);
+                    v1 = add(v1, mul(sp(sl), bm[l]));
+                    v2 = add(v2, mul(sp(sl * sl), bp[l]));
+                }
+                let al = alpha(half);
+                acc[0] = add(acc[0], mul(al, v0));
+                acc[2] = add(acc[2], mul(al, v1));
+                acc[5] = add(acc[5], mul(al, v2));
+            }
+        }
+    }
+    acc
+}
+
+#[inline(always)]
+fn factored_rows<S: Simd, const M: usize>(simd: S, sums: FactoredSums) {
+    let FactoredSums {
+        nodes,
+        u,
+        p,
+        aq,
+        bv,
+        coupling,
+        g,
+        w,
+        h,
+        x_first,
+        y_first,
+        s0,
+        out,
+    } = sums;
+    let nodes = &nodes[..M];
+    let [p1_out, p2_out, p3_out, p4_out, p5_out] = out;
+    let lanes = S::F64_LANES;
+    let (add, mul) = (|a, b| simd.add_f64s(a, b), |a, b| simd.mul_f64s(a, b));
+    // the columns' X of a lane group: x_first + c0 + (0, 1, ..)
+    let mut offsets = [0.0f64; MAX_LANES];
+    for (l, o) in offsets.iter_mut().enumerate() {
+        *o = l as f64;
+    }
+    let lane_x = simd.partial_load_f64s(&offsets[..lanes]);
+    for c0 in (0..w).step_by(lanes) {
+        let c1 = (c0 + lanes).min(w);
+        let load = |a: &[f64], at: usize| load_lanes(simd, &a[at + c0..at + c1]);
+        let x = add(simd.splat_f64s(x_first + c0 as f64), lane_x);
+        let two_x = add(x, x);
+        let xx = mul(x, x);
+        for j in 0..h {
+            // (plain loops, not `array::from_fn` / `map`: those are not inlined into the
+            // target-feature function and run as calls)
+            let mut be = [simd.splat_f64s(0.0); M];
+            for (l, b) in be.iter_mut().enumerate() {
+                *b = simd.mul_f64s(simd.splat_f64s(bv[l * h + j]), load(p, l * w));
+            }
+            let alpha = |k: usize| simd.mul_f64s(simd.splat_f64s(aq[k * h + j]), load(u, k * w));
+            let acc = node_sums::<S, M>(simd, nodes, &coupling, &be, alpha);
+            let gv = load(g, j * w);
+            let [e, sx, sy, sxx, sxy, syy] = acc;
+            let (e, sx, sy) = (mul(gv, e), mul(gv, sx), mul(gv, sy));
+            let (sxx, sxy, syy) = (mul(gv, sxx), mul(gv, sxy), mul(gv, syy));
+            let y = simd.splat_f64s(y_first + j as f64);
+            let ph = [
+                e,
+                add(mul(x, e), sx),
+                add(mul(y, e), sy),
+                add(add(mul(xx, e), mul(two_x, sx)), sxx),
+                add(add(add(mul(mul(x, y), e), mul(x, sy)), mul(y, sx)), sxy),
+                add(add(mul(mul(y, y), e), mul(add(y, y), sy)), syy),
+            ];
+            let row = j * w + c0..j * w + c1;
+            let store = |o: &mut [f64], v| store_lanes(simd, o, v);
+            store(&mut s0[row.clone()], ph[0]);
+            store(&mut p1_out[row.clone()], ph[1]);
+            store(&mut p2_out[row.clone()], ph[2]);
+            store(&mut p3_out[row.clone()], ph[3]);
+            store(&mut p4_out[row.clone()], ph[4]);
+            store(&mut p5_out[row], ph[5]);
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -322,6 +677,139 @@ mod tests {
                 out
             };
             assert_eq!(run(fast), run(Arch::Scalar), "{w}x{h}");
+
+            // the pass over a per-pixel basis
+            let phi: Vec<Vec<f64>> = (0..6)
+                .map(|_| (0..w * h).map(|_| rng.random::<f64>() - 0.3).collect())
+                .collect();
+            let inp = BasisIn {
+                phi: [&phi[0], &phi[1], &phi[2], &phi[3], &phi[4], &phi[5]],
+                d: &d,
+                keep: &keep,
+                wt: &wt,
+                w,
+                h,
+                amp: 1.3,
+                bg: -0.4,
+            };
+            let a = basis_sums(fast, &inp, &mut acc);
+            assert_eq!(a, basis_sums(Arch::Scalar, &inp, &mut acc), "{w}x{h}");
+            let (mut g34, mut g5c, mut grad2, mut cost) = (0.0, 0.0, 0.0, 0.0);
+            for k in 0..w * h {
+                let r = d[k] - (inp.bg + inp.amp * phi[0][k]);
+                g34 += wt[k] * phi[3][k] * phi[4][k];
+                g5c += wt[k] * phi[5][k];
+                grad2 += wt[k] * r * phi[2][k];
+                cost += wt[k] * r * r;
+            }
+            // (upper triangle in row order: (3, 4) is entry 6 + 5 + 4 + 1 = 16; Σ w φ5 is 26)
+            for (got, want) in [(a.gram[16], g34), (a.gram[26], g5c), (a.grad[2], grad2)] {
+                assert!(
+                    (got - want).abs() <= 1e-12 * (1.0 + want.abs()),
+                    "{got} {want}"
+                );
+            }
+            assert!((a.cost - cost).abs() <= 1e-12 * (1.0 + cost));
+
+            // the factored quadrature's sums, for 1 to MAX_NODES nodes: both couplings on both
+            // paths, against each other and against the definition
+            for m in [1, 2, 3, 5, 8, 9, MAX_NODES] {
+                let mut v = |len: usize| (0..len).map(|_| rng.random::<f64>()).collect::<Vec<_>>();
+                let (u, p, aq, bv, g) = (v(m * w), v(m * w), v(m * h), v(m * h), v(w * h));
+                // a rule symmetric about 0, positive nodes first
+                let mut nodes = vec![0.0; m];
+                for k in 0..m / 2 {
+                    nodes[k] = 0.5 - 0.1 * k as f64 - 0.03 * rng.random::<f64>();
+                    nodes[m - 1 - k] = -nodes[k];
+                }
+                let b = 3.0 * rng.random::<f64>() - 1.5;
+                let t: Vec<Vec<f64>> = (0..3)
+                    .map(|n| {
+                        (0..m * m)
+                            .map(|at| {
+                                let (k, l) = (at / m, at % m);
+                                (-b * nodes[k] * nodes[l]).exp() * nodes[l].powi(n)
+                            })
+                            .collect()
+                    })
+                    .collect();
+                let half = m / 2;
+                let pairs: Vec<Vec<f64>> = (0..6)
+                    .map(|q| {
+                        (0..half * half)
+                            .map(|at| {
+                                let (k, l) = (at / half, at % half);
+                                let x = b * nodes[k] * nodes[l];
+                                let cd = if q % 2 == 0 { x.cosh() } else { -x.sinh() };
+                                cd * nodes[l].powi(q / 2)
+                            })
+                            .collect()
+                    })
+                    .collect();
+                let (x_first, y_first) = (-3.2, 1.7);
+                let run = |arch: Arch, symmetric: bool| {
+                    let mut o: Vec<Vec<f64>> = vec![vec![0.0; w * h]; 6];
+                    let (s0, rest) = o.split_first_mut().unwrap();
+                    let [o1, o2, o3, o4, o5] = rest else {
+                        unreachable!()
+                    };
+                    let coupling = if symmetric {
+                        Coupling::Symmetric(std::array::from_fn(|q| &pairs[q][..]))
+                    } else {
+                        Coupling::Full([&t[0], &t[1], &t[2]])
+                    };
+                    factored_sums(
+                        arch,
+                        FactoredSums {
+                            nodes: &nodes,
+                            u: &u,
+                            p: &p,
+                            aq: &aq,
+                            bv: &bv,
+                            coupling,
+                            g: &g,
+                            w,
+                            h,
+                            x_first,
+                            y_first,
+                            s0,
+                            out: [o1, o2, o3, o4, o5],
+                        },
+                    );
+                    o
+                };
+                let full = run(fast, false);
+                assert_eq!(full, run(Arch::Scalar, false), "{w}x{h}, {m} nodes");
+                // φ̄4 = XY S0 + X Sy + Y Sx + Sxy at the last pixel against the definition
+                let (i, j) = (w - 1, h - 1);
+                let (x, y) = (x_first + i as f64, y_first + j as f64);
+                let mut sum = [0.0; 4];
+                for k in 0..m {
+                    for l in 0..m {
+                        let al = aq[k * h + j] * u[k * w + i];
+                        let be = bv[l * h + j] * p[l * w + i];
+                        let e = al * t[0][k * m + l] * be * g[j * w + i];
+                        sum[0] += e;
+                        sum[1] += e * nodes[k];
+                        sum[2] += e * nodes[l];
+                        sum[3] += e * nodes[k] * nodes[l];
+                    }
+                }
+                let want = x * y * sum[0] + x * sum[2] + y * sum[1] + sum[3];
+                let got = full[4][j * w + i];
+                assert!(
+                    (got - want).abs() <= 1e-12 * (1.0 + want.abs()),
+                    "{got} {want}"
+                );
+                if m > 1 {
+                    let paired = run(fast, true);
+                    assert_eq!(paired, run(Arch::Scalar, true), "{w}x{h}, {m} nodes paired");
+                    let scale = full[0].iter().fold(0.0f64, |a, v| a.max(v.abs()));
+                    for (a, b) in full.iter().flatten().zip(paired.iter().flatten()) {
+                        assert!((a - b).abs() <= 1e-12 * (1.0 + scale), "{a} {b}, {m} nodes");
+                    }
+                }
+            }
         }
     }
 }
