@@ -1303,13 +1303,11 @@ impl<'a> Iteration<'a> {
                     } else {
                         // (a full fit that failed in the pass before, when no median shape
                         // was known to hold: the shape held first)
-                        f.held_first = matches!(
+                        let held_first = matches!(
                             own.status,
                             FitStatus::Singular | FitStatus::LeftWindow | FitStatus::NonFinite
                         );
-                        let fit = f.fit_loaded(flags, start, hint.as_ref(), noise);
-                        f.held_first = false;
-                        fit
+                        f.fit_loaded(flags, start, hint.as_ref(), noise, held_first)
                     };
                     fit.index = s.index;
                     fit.flags |= s.flags;

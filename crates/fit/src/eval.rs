@@ -724,15 +724,13 @@ fn integrated_factored(
     geometric(b, false, x_first, w, tables);
     geometric(c, true, y_first, h, tables);
     geometric(b, false, y_first, h, tables);
-    // the coupling matrices T (exp(−b s_k s_l)), T·diag(s), T·diag(s²), row-major, after the
-    // tables
-    // the coupling of the nodes: T = exp(−b s_k s_l) and T s_l, T s_l² (m × m), or where the
+    // the coupling of the nodes, after the tables: T = exp(−b s_k s_l) and T s_l, T s_l² (m × m), or where the
     // products stay small, cosh/sinh over the pairs ±s of the symmetric rule (half the work)
-    let half = m / 2;
-    let symmetric = m > 1 && b.abs() * nodes[0] * nodes[0] <= SYMMETRIC_MAX_X;
+    let (half, symmetric) = (m / 2, pairs_nodes(b, nodes));
+    let n2 = half * half;
     let t_at = tables.len();
     if symmetric {
-        tables.resize(t_at + 6 * half * half, 0.0);
+        tables.resize(t_at + 6 * n2, 0.0);
         let mats = &mut tables[t_at..];
         for k in 0..half {
             for l in 0..half {
@@ -742,7 +740,6 @@ fn integrated_factored(
                 let e = (b * nodes[k] * sl).exp_m1();
                 let sh = 0.5 * (e + e / (1.0 + e));
                 let (c, d) = (sh + 1.0 / (1.0 + e), -sh);
-                let n2 = half * half;
                 mats[at] = c;
                 mats[n2 + at] = d;
                 mats[2 * n2 + at] = c * sl;
@@ -778,7 +775,6 @@ fn integrated_factored(
         tq[k * h..(k + 1) * h].iter_mut().for_each(|v| *v *= wk);
     }
     let coupling = if symmetric {
-        let n2 = half * half;
         simd::Coupling::Symmetric(std::array::from_fn(|q| &t[q * n2..(q + 1) * n2]))
     } else {
         simd::Coupling::Full(std::array::from_fn(|q| &t[q * m * m..(q + 1) * m * m]))
@@ -809,6 +805,12 @@ fn integrated_factored(
 /// nodes ([`simd::Coupling::Symmetric`]): the cancellation in `cosh x − sinh x` then costs at
 /// most a factor `e⁴` of the relative precision (~1e-14).
 const SYMMETRIC_MAX_X: f64 = 2.0;
+
+/// Whether [`integrated_factored`] pairs the nodes ±s of the (symmetric) rule `nodes` for the
+/// coupling `b` (see [`SYMMETRIC_MAX_X`]).
+fn pairs_nodes(b: f64, nodes: &[f64]) -> bool {
+    nodes.len() > 1 && b.abs() * nodes[0] * nodes[0] <= SYMMETRIC_MAX_X
+}
 
 /// [`fill_phi_integrated`]'s node sums by one [`exp_grid`] per node pair.
 fn integrated_by_nodes(ws: &mut Workspace, s: &Shape, x_first: f64, y_first: f64, order: usize) {
@@ -1423,8 +1425,7 @@ mod tests {
                     }
                     integrated_by_nodes(&mut b, &s, x_first, y_first, order);
                     pixel_means_from_sums(&mut b, x_first, y_first);
-                    let (nodes, _) = gl_rule(order);
-                    if order > 1 && s.b.abs() * nodes[0] * nodes[0] <= SYMMETRIC_MAX_X {
+                    if pairs_nodes(s.b, gl_rule(order).0) {
                         paired += 1;
                     }
                     let n = ww * hh;

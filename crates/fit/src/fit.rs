@@ -63,13 +63,6 @@ pub struct Fitter {
     pub(crate) intermediate: bool,
     /// The start is a fit of the same dot (weights there are right): no reweighting check.
     pub(crate) warm: bool,
-    /// The solve under way starts from a fit of the dot (its hint), whose sigma is the dot's
-    /// own, not a window's moments: `auto` sampling decides at that sigma.
-    fitted_start: bool,
-    /// The dot's full fit failed in the pass before (singular, left its window, not finite):
-    /// the next fit holds the shape first (at [`Fitter::fixed_shape`]), and fits all
-    /// parameters only where that finds no dot.
-    pub(crate) held_first: bool,
     /// What the last least-squares fit of this fitter left beside its record.
     pub(crate) last: LastFit,
     /// The shape (σx, σy, ρ) at which a least-squares fit that fails (singular, left its window, not finite) is fitted again
@@ -142,8 +135,6 @@ impl Fitter {
             ws: Workspace::default(),
             intermediate: false,
             warm: false,
-            fitted_start: false,
-            held_first: false,
             last: LastFit::default(),
             fixed_shape: None,
         }
@@ -164,7 +155,7 @@ impl Fitter {
         noise: &NoiseModel,
     ) -> DotFit {
         let flags = self.load_image(img, mask, window);
-        self.fit_loaded(flags, start, hint, noise)
+        self.fit_loaded(flags, start, hint, noise, false)
     }
 
     /// Fits the dot in a window given as samples.
@@ -176,7 +167,7 @@ impl Fitter {
         noise: &NoiseModel,
     ) -> DotFit {
         let flags = self.load_samples(s);
-        self.fit_loaded(flags, start, hint, noise)
+        self.fit_loaded(flags, start, hint, noise, false)
     }
 
     /// Loads the window's pixels into the workspace; returns the window flags.
@@ -268,13 +259,17 @@ impl Fitter {
         flags
     }
 
-    /// Fits the pixels loaded in the workspace.
+    /// Fits the pixels loaded in the workspace. `held_first`: the dot's full fit failed in the
+    /// pass before (singular, left its window, not finite), so a least-squares fit holds the
+    /// shape first (at [`Fitter::fixed_shape`]) and fits all parameters only where that finds
+    /// no dot.
     pub(crate) fn fit_loaded(
         &mut self,
         flags: DotFlags,
         start: [f64; 2],
         hint: Option<&Gaussian2D>,
         noise: &NoiseModel,
+        held_first: bool,
     ) -> DotFit {
         self.last = LastFit::default();
         let ws = &mut self.ws;
@@ -320,8 +315,9 @@ impl Fitter {
             Estimator::Lsg => {
                 // a dot whose full fit failed before: its shape held first (issue 17: at σ
                 // 0.3 px half the dots' full fits fail, each after ~12 iterations, twice)
+                let held_tried = held_first && self.fixed_shape.is_some();
                 let held = match self.fixed_shape {
-                    Some(shape) if self.held_first => self.solve_fixed_shape(
+                    Some(shape) if held_tried => self.solve_fixed_shape(
                         start,
                         hint,
                         &bounds,
@@ -333,7 +329,8 @@ impl Fitter {
                 };
                 let (out, shape_fixed) = match held {
                     Some(out) => (out, true),
-                    None => self.solve_free(start, hint, &bounds, noise),
+                    // (the held shape, tried and failed, is not tried again after the free fit)
+                    None => self.solve_free(start, hint, &bounds, noise, !held_tried),
                 };
                 let kind = if shape_fixed {
                     Kind::FixedShape
@@ -410,7 +407,7 @@ impl Fitter {
         let min_z = if at_site { 0.0 } else { PRESENCE_MIN_Z };
         let held = self.solve_fixed_shape(start, None, &bounds, noise, shape, min_z)?;
         let g = gaussian_from_theta(&held.theta);
-        let fit = self.fit_loaded(flags, [g.x0, g.y0], Some(&g), noise);
+        let fit = self.fit_loaded(flags, [g.x0, g.y0], Some(&g), noise, false);
         fit.status.is_ok().then_some(fit)
     }
 
@@ -469,32 +466,34 @@ impl Fitter {
     }
 
     /// The least-squares fit with every parameter free, from `hint` (or the start's moments,
-    /// and from those again where the hint's fit fails); where that is singular, leaves its
-    /// window or is not finite, with the shape held at [`Fitter::fixed_shape`] (`true`: held).
+    /// and from those again where the hint's fit fails); with `fallback`, where that is
+    /// singular, leaves its window or is not finite, with the shape held at
+    /// [`Fitter::fixed_shape`] (`true`: held).
     fn solve_free(
         &mut self,
         start: [f64; 2],
         hint: Option<&Gaussian2D>,
         bounds: &Bounds,
         noise: &NoiseModel,
+        fallback: bool,
     ) -> (Outcome, bool) {
         let theta0 = self.start_theta(start, hint, bounds);
-        self.fitted_start = hint.is_some();
-        let mut out = self.solve(theta0, bounds, noise);
-        self.fitted_start = false;
+        let mut out = self.solve(theta0, bounds, noise, hint.is_some());
         if hint.is_some() && !out.status.is_ok() {
             // a warm start that went wrong: once more from the moments
             let theta0 = self.start_theta(start, None, bounds);
-            let again = self.solve(theta0, bounds, noise);
+            let again = self.solve(theta0, bounds, noise, false);
             out = Outcome {
                 iterations: out.iterations + again.iterations,
                 ..again
             };
         }
-        if matches!(
-            out.status,
-            FitStatus::Singular | FitStatus::LeftWindow | FitStatus::NonFinite
-        ) && let Some(shape) = self.fixed_shape
+        if fallback
+            && matches!(
+                out.status,
+                FitStatus::Singular | FitStatus::LeftWindow | FitStatus::NonFinite
+            )
+            && let Some(shape) = self.fixed_shape
             && let Some(again) =
                 self.solve_fixed_shape(start, hint, bounds, noise, shape, FIXED_SHAPE_MIN_Z)
         {
@@ -532,7 +531,7 @@ impl Fitter {
             bounds.project(&mut theta0);
         }
         let saved = std::mem::replace(&mut self.kind, kind);
-        let out = self.solve(theta0, bounds, noise);
+        let out = self.solve(theta0, bounds, noise, false);
         self.kind = saved;
         // the amplitude's row among the free parameters
         let k = kind.free().iter().position(|&p| p == crate::eval::IA)?;
@@ -563,11 +562,19 @@ impl Fitter {
         (out.status.is_ok() && z >= min_z).then_some(out)
     }
 
-    fn solve(&mut self, theta0: Theta, bounds: &Bounds, noise: &NoiseModel) -> Outcome {
+    /// `fitted_start`: `theta0` is a fit of the dot (the pass before), whose sigma is the dot's
+    /// own, not a window's moments (`auto` sampling decides at it).
+    fn solve(
+        &mut self,
+        theta0: Theta,
+        bounds: &Bounds,
+        noise: &NoiseModel,
+        fitted_start: bool,
+    ) -> Outcome {
         let mut out = match self.cfg.sampling {
             FitSampling::Point => self.solve_with(theta0, bounds, noise, Sampling::Point),
             FitSampling::Integrated => self.solve_with(theta0, bounds, noise, Sampling::Integrated),
-            FitSampling::Auto => self.solve_auto(theta0, bounds, noise),
+            FitSampling::Auto => self.solve_auto(theta0, bounds, noise, fitted_start),
         };
         if self.kind == Kind::Linear {
             // (no position among the free parameters)
@@ -587,7 +594,13 @@ impl Fitter {
 
     /// [`FitSampling::Auto`]: the pixel-blurred point model while the dot is wide enough, the
     /// pixel-integrated model from where it is not.
-    fn solve_auto(&mut self, theta0: Theta, bounds: &Bounds, noise: &NoiseModel) -> Outcome {
+    fn solve_auto(
+        &mut self,
+        theta0: Theta,
+        bounds: &Bounds,
+        noise: &NoiseModel,
+        fitted_start: bool,
+    ) -> Outcome {
         let start_sigma = conditional_sigma(&theta0);
         // an intermediate fit (a neighbour model and the start of the next pass, which fits
         // the integrated model where the dot is narrow) takes the pixel-blurred point model
@@ -601,7 +614,7 @@ impl Fitter {
         // the decision is taken there (issue 17: the σ 0.75 px scene's final pass fitted the
         // blurred model again, then the integrated one from its answer; its ghosts likewise)
         let held = matches!(self.kind, Kind::Linear | Kind::FixedShape);
-        let bar = if held || self.fitted_start {
+        let bar = if held || fitted_start {
             AUTO_SIGMA
         } else {
             0.7 * AUTO_SIGMA
