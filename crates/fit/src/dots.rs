@@ -167,7 +167,7 @@ fn fit_dots_inner(
     }
     // pass 2: every dot again, to the full tolerance (with the weights check)
     let fits: Vec<DotFit> = first.iter().map(|i| i.fit).collect();
-    it.fixed_shape = median_shape(&fits);
+    it.fixed_shape = median_shape_first(&first, &prev);
     hood.update(&first, cfg.sampling);
     hood.set_ghosts(it.ghosts(&fits, &hood));
     let (second, colour) = it.pass_red_black(&first, &fits, &mut hood, &mut canvas_buf);
@@ -410,13 +410,7 @@ const MIN_SHAPE_FITS: usize = 10;
 fn median_shape(fits: &[DotFit]) -> Option<[f64; 3]> {
     let good: Vec<&Gaussian2D> = fits
         .iter()
-        .filter(|f| {
-            f.status == FitStatus::Converged
-                && !f
-                    .flags
-                    .intersects(DotFlags::AT_BOUND | DotFlags::SHAPE_FIXED)
-                && f.params.is_valid()
-        })
+        .filter(|f| shapes_the_median(f))
         .map(|f| &f.params)
         .collect();
     if good.len() < MIN_SHAPE_FITS {
@@ -430,6 +424,48 @@ fn median_shape(fits: &[DotFit]) -> Option<[f64; 3]> {
         median(|g| g.sigma_y),
         median(|g| g.rho),
     ])
+}
+
+/// Whether a fit's shape enters [`median_shape`].
+fn shapes_the_median(f: &DotFit) -> bool {
+    f.status == FitStatus::Converged
+        && !f
+            .flags
+            .intersects(DotFlags::AT_BOUND | DotFlags::SHAPE_FIXED)
+        && f.params.is_valid()
+}
+
+/// [`median_shape`] of pass 1's records, whose narrow dots were fitted with ρ held at 0
+/// (`Fitter::solve_integrated`): ρ's median then over the fits that fitted it, or where fewer
+/// than [`MIN_SHAPE_FITS`] did, over the window moments (`moments`, the records pass 1 started
+/// from) of the dots whose fits held it: the covariance of the moments is not widened by the
+/// pixel, only their variances, which they are corrected for. (Issue 17: on a σ 0.3 × 0.45 px,
+/// ρ 0.5 lattice the held fits had ρ 0 where every dot is narrow; with the moments' median
+/// ρ they have 0.48.)
+fn median_shape_first(first: &[Item], moments: &[DotFit]) -> Option<[f64; 3]> {
+    let fits: Vec<DotFit> = first.iter().map(|i| i.fit).collect();
+    let mut shape = median_shape(&fits)?;
+    let good = |i: &&Item| shapes_the_median(&i.fit);
+    let fitted: Vec<f64> = first
+        .iter()
+        .filter(good)
+        .filter(|i| !i.rho_held)
+        .map(|i| i.fit.params.rho)
+        .collect();
+    let mut rho: Vec<f64> = if fitted.len() >= MIN_SHAPE_FITS {
+        fitted
+    } else {
+        first
+            .iter()
+            .zip(moments)
+            .filter(|(i, m)| good(i) && i.rho_held && m.params.rho.is_finite())
+            .map(|(_, m)| m.params.rho)
+            .collect()
+    };
+    if rho.len() >= MIN_SHAPE_FITS {
+        shape[2] = bostrack_core::median(&mut rho);
+    }
+    Some(shape)
 }
 
 /// How many seeds are fitted (not flagged missing).
@@ -454,6 +490,8 @@ struct Item {
     /// The last update was one Gauss-Newton step from the fit before ([`linear_step`]), not a
     /// fit.
     stepped: bool,
+    /// A fit with ρ held at 0 (`LastFit::rho_held`).
+    rho_held: bool,
 }
 
 impl Item {
@@ -465,6 +503,7 @@ impl Item {
             chi2: if lsg { f.last.chi2 } else { f64::NAN },
             dof: if lsg { f.last.dof } else { 0 },
             moved: if lsg { f.last.moved } else { f64::INFINITY },
+            rho_held: lsg && f.last.rho_held,
             looked: if lsg && looked_at {
                 let n = crate::eval::Kind::from_model(f.config().model).n_free();
                 f.last
@@ -490,6 +529,7 @@ impl Item {
             moved: 0.0,
             looked: None,
             stepped: false,
+            rho_held: false,
         }
     }
 }
@@ -715,6 +755,7 @@ fn linear_step(
         moved,
         looked: keep,
         stepped: true,
+        rho_held: false,
     })
 }
 

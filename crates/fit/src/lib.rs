@@ -13,8 +13,9 @@
 //! - **Models**: elliptical (7 parameters), axis-aligned (ρ = 0) and circular, each
 //!   point-sampled or pixel-integrated ([`FitConfig`]).
 //! - **Parameterisation** `[x0, y0, A, ln σx, ln σy, atanh ρ, B]`: σ > 0 and |ρ| < 1 hold by
-//!   construction; box bounds σ ∈ [0.1 px, window side], |ρ| ≤ 0.999, A > 0 (a fit ending on
-//!   one is flagged `AT_BOUND`); a step that takes the centre out of the window is rejected.
+//!   construction; box bounds σ ∈ [0.1 px, window side], |ρ| ≤ 0.999 and no narrower than
+//!   0.1 px along the ellipse's minor axis, A > 0 (a fit ending on one is flagged
+//!   `AT_BOUND`); a step that takes the centre out of the window is rejected.
 //! - **Fast solver**: Levenberg-Marquardt with Marquardt scaling, the normal equations built in
 //!   one fused pass per trial point (the trial's cost, and its normal matrix for the next step).
 //!   Every derivative is a combination of `E·{1, X, Y, X², XY, Y²}`, so for the point-sampled

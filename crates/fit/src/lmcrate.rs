@@ -175,5 +175,7 @@ pub(crate) fn solve_lm_crate(
         ssr: pass.ssr,
         cost: pass.cost,
         bound: None,
+        unbounded: false,
+        rho_held: false,
     }
 }

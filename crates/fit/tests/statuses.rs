@@ -50,6 +50,48 @@ fn undersampled_dots_are_positions_with_a_held_shape_not_failures() {
     assert!((0.85..=1.15).contains(&ratio), "RMS error / bound {ratio}");
 }
 
+/// The held shape of an elliptical undersampled lattice is the lattice's: pass 1 fits such
+/// narrow dots with ρ held at 0 (a neighbour model and a start), so ρ's median comes from the
+/// window moments there, not from those fits (which would hold every dot at ρ = 0).
+#[test]
+fn the_held_shape_of_elliptical_undersampled_dots_keeps_their_correlation() {
+    let size = 240;
+    let truth_shape = [0.3, 0.45, 0.5];
+    let (clean, truth) = common::lattice_shaped(10.0, truth_shape, 7.0, size);
+    let nm = NoiseModel {
+        read_variance: 100.0,
+        gain: 0.6,
+        offset: 0.0,
+    };
+    let (mut errs, mut bounds, mut rhos) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut usable, mut total) = (0usize, 0usize);
+    for seed in 0..3 {
+        let img = common::noisy_image(&clean, size, &nm, 300 + seed);
+        let seeds = common::seeds_of(&truth);
+        let fits = fit_dots(&img, None, &seeds, &FitConfig::default(), &nm).unwrap();
+        for (f, g) in fits.iter().zip(&truth) {
+            total += 1;
+            usable += f.status.is_ok() as usize;
+            if f.flags.contains(DotFlags::SHAPE_FIXED) && f.status.is_ok() {
+                rhos.push(f.params.rho);
+                errs.push((f.params.x0 - g.x0).powi(2) + (f.params.y0 - g.y0).powi(2));
+                bounds.push(f.crlb_x.powi(2) + f.crlb_y.powi(2));
+            }
+        }
+    }
+    let ratio = (errs.iter().sum::<f64>() / bounds.iter().sum::<f64>()).sqrt();
+    let rho = rhos.iter().sum::<f64>() / rhos.len() as f64;
+    println!(
+        "{total} dots: {usable} usable, {} held at ρ {rho:.3} (truth {}); RMS error / RMS bound {ratio:.3}",
+        rhos.len(),
+        truth_shape[2]
+    );
+    assert!(rhos.len() * 10 > total, "{} of {total} held", rhos.len());
+    assert!(usable * 1000 >= total * 995, "{usable} of {total} usable");
+    assert!((rho - truth_shape[2]).abs() <= 0.1, "held at ρ {rho}");
+    assert!((0.85..=1.2).contains(&ratio), "RMS error / bound {ratio}");
+}
+
 #[test]
 fn an_empty_window_is_not_made_a_dot_by_holding_the_shape() {
     let size = 120;

@@ -86,6 +86,17 @@ pub fn lattice(
     angle_deg: f64,
     size: usize,
 ) -> (Vec<f64>, Vec<Gaussian2D>) {
+    lattice_shaped(spacing, [sigma, sigma, 0.0], angle_deg, size)
+}
+
+/// [`lattice`] of dots of shape `[σx, σy, ρ]`.
+#[allow(dead_code)]
+pub fn lattice_shaped(
+    spacing: f64,
+    shape: [f64; 3],
+    angle_deg: f64,
+    size: usize,
+) -> (Vec<f64>, Vec<Gaussian2D>) {
     let (s, c) = angle_deg.to_radians().sin_cos();
     let mut dots = Vec::new();
     let n = (size as f64 / spacing) as i32 + 2;
@@ -101,21 +112,42 @@ pub fn lattice(
                 x0: x,
                 y0: y,
                 amplitude: 1000.0,
-                sigma_x: sigma,
-                sigma_y: sigma,
-                rho: 0.0,
+                sigma_x: shape[0],
+                sigma_y: shape[1],
+                rho: shape[2],
                 background: 0.0,
             });
         }
     }
     let mut v = vec![100.0; size * size];
     for g in &dots {
-        add_dot(
-            g,
-            Window::new(0, 0, size, size),
-            Sampling::Integrated,
-            &mut v,
+        if g.rho == 0.0 {
+            add_dot(
+                g,
+                Window::new(0, 0, size, size),
+                Sampling::Integrated,
+                &mut v,
+            );
+            continue;
+        }
+        // over the dot's box of ±10 σ (an elliptical integrated dot over the whole image costs
+        // a quadrature per pixel)
+        let r = 10.0 * g.sigma_x.max(g.sigma_y) + 2.0;
+        let (x0, y0) = ((g.x0 - r).floor().max(0.0), (g.y0 - r).floor().max(0.0));
+        let (x1, y1) = (
+            (g.x0 + r).ceil().min(size as f64),
+            (g.y0 + r).ceil().min(size as f64),
         );
+        let (w, h) = ((x1 - x0) as usize, (y1 - y0) as usize);
+        let mut local = vec![0.0; w * h];
+        let win = Window::new(x0 as i64, y0 as i64, w, h);
+        add_dot(g, win, Sampling::Integrated, &mut local);
+        for r in 0..h {
+            let at = (y0 as usize + r) * size + x0 as usize;
+            for (o, l) in v[at..at + w].iter_mut().zip(&local[r * w..(r + 1) * w]) {
+                *o += l;
+            }
+        }
     }
     (v, dots)
 }
