@@ -696,7 +696,9 @@ impl Fitter {
     /// the later passes' looks see the full model's. Issue 17, bench/trackpy's σ 0.3 px
     /// scene: 1.69 → 1.22 G instructions for `locate`, RMS error 0.600 → 0.581 of the bound.
     fn solve_integrated(&mut self, theta0: Theta, bounds: &Bounds, noise: &NoiseModel) -> Outcome {
+        // (with `neighbour_passes = 1` pass 1's fits are the final ones: the full model there)
         if !(self.intermediate
+            && self.cfg.neighbour_passes > 1
             && self.kind == Kind::Elliptical
             && conditional_sigma(&theta0) < INTERMEDIATE_BLUR_SIGMA)
         {

@@ -92,6 +92,42 @@ fn the_held_shape_of_elliptical_undersampled_dots_keeps_their_correlation() {
     assert!((0.85..=1.2).contains(&ratio), "RMS error / bound {ratio}");
 }
 
+/// With `neighbour_passes = 1` pass 1's fits are the final ones: narrow dots keep ρ free there
+/// (only a pass that a later one refits holds it at 0).
+#[test]
+fn a_single_pass_fits_narrow_dots_with_their_correlation() {
+    let size = 120;
+    let (clean, truth) = common::lattice_shaped(10.0, [0.3, 0.45, 0.5], 7.0, size);
+    let nm = NoiseModel::read(10.0);
+    let img = common::noisy_image(&clean, size, &nm, 400);
+    let cfg = FitConfig {
+        neighbour_passes: 1,
+        ..FitConfig::default()
+    };
+    let fits = fit_dots(&img, None, &common::seeds_of(&truth), &cfg, &nm).unwrap();
+    let ok: Vec<f64> = fits
+        .iter()
+        .filter(|f| f.status.is_ok())
+        .map(|f| f.params.rho)
+        .collect();
+    let zero = ok.iter().filter(|&&r| r == 0.0).count();
+    let mut sorted = ok.clone();
+    sorted.sort_by(f64::total_cmp);
+    let median = sorted[sorted.len() / 2];
+    println!(
+        "{} fits, {zero} with ρ exactly 0, median ρ {median:.3}",
+        ok.len()
+    );
+    assert!(
+        ok.len() * 10 >= truth.len() * 9,
+        "{} of {}",
+        ok.len(),
+        truth.len()
+    );
+    assert_eq!(zero, 0);
+    assert!((median - 0.5).abs() < 0.15, "median ρ {median}");
+}
+
 #[test]
 fn an_empty_window_is_not_made_a_dot_by_holding_the_shape() {
     let size = 120;
