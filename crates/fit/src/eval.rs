@@ -436,7 +436,7 @@ impl Workspace {
         let m = w.max(h);
         self.v.resize(m, 0.0);
         self.q.resize(m, 0.0);
-        self.xp.resize(w, [0.0; 5]);
+        self.xp.resize(w + h, [0.0; 5]);
         self.mark.resize(n, false);
         for buf in self.acc.iter_mut() {
             buf.resize(n, 0.0);
@@ -574,24 +574,37 @@ fn eval_point_moments(ws: &mut Workspace, theta: &Theta, s: &Shape, noise: &Nois
     }
 }
 
-/// 1-D pixel moments of g(X) = exp(-a X²/2) over [X - 1/2, X + 1/2]: (∫g, ∫Xg, ∫X²g).
-#[inline]
-fn pixel_moments_1d(a: f64, x: f64) -> (f64, f64, f64) {
-    let (lo, hi) = (x - 0.5, x + 0.5);
+/// 1-D pixel moments of g(X) = exp(-a X²/2) over [X - 1/2, X + 1/2], `(∫g, ∫Xg, ∫X²g)` in the
+/// first three entries of `out[i]`, for the pixels `X = first + i`: each pixel edge's `erfc`
+/// and `exp` once, shared by the two pixels it bounds (issue 17: half the special functions of
+/// the closed-form pass, which pass 1 of an undersampled scene's dots takes), the pixel that
+/// holds the centre by `erf` (no cancellation).
+fn axis_moments(a: f64, first: f64, out: &mut [[f64; 5]]) {
     let s = (0.5 * a).sqrt();
-    let (sl, sh) = (s * lo, s * hi);
-    let diff = if sl > 0.0 {
-        libm::erfc(sl) - libm::erfc(sh)
-    } else if sh < 0.0 {
-        libm::erfc(-sh) - libm::erfc(-sl)
-    } else {
-        libm::erf(sh) - libm::erf(sl)
+    let scale = 0.5 * std::f64::consts::PI.sqrt() / s;
+    // edge values at t = s·e: erfc(|t|) and exp(−t²)
+    let edge = |e: f64| {
+        let t = s * e;
+        (t, libm::erfc(t.abs()), (-t * t).exp())
     };
-    let i0 = 0.5 * std::f64::consts::PI.sqrt() / s * diff;
-    let (gl, gh) = ((-sl * sl).exp(), (-sh * sh).exp());
-    let i1 = (gl - gh) / a;
-    let i2 = (i0 + lo * gl - hi * gh) / a;
-    (i0, i1, i2)
+    let mut lo = first - 0.5;
+    let (mut tl, mut el, mut gl) = edge(lo);
+    for (i, o) in out.iter_mut().enumerate() {
+        let hi = (first + (i + 1) as f64) - 0.5;
+        let (th, eh, gh) = edge(hi);
+        let diff = if tl > 0.0 {
+            el - eh
+        } else if th < 0.0 {
+            eh - el
+        } else {
+            libm::erf(th) - libm::erf(tl)
+        };
+        let i0 = scale * diff;
+        let i1 = (gl - gh) / a;
+        let i2 = (i0 + lo * gl - hi * gh) / a;
+        *o = [i0, i1, i2, 0.0, 0.0];
+        (lo, tl, el, gl) = (hi, th, eh, gh);
+    }
 }
 
 /// Fills ws.e (φ̄0) and ws.phi (φ̄1..φ̄5) with the pixel means of the basis at θ.
@@ -601,18 +614,14 @@ pub(crate) fn fill_phi_integrated(ws: &mut Workspace, theta: &Theta, kind: Kind)
     let x_first = ws.wx as f64 - theta[IX];
     let y_first = ws.wy as f64 - theta[IY];
     if matches!(kind, Kind::AxisAligned | Kind::Circular) || theta[IT] == 0.0 {
-        // separable and exact: E = gx(X) gy(Y)
-        // (the first w entries of tmp hold the x moments, the y moments are made per row)
+        // separable and exact: E = gx(X) gy(Y) (xp: the w columns' moments, then the h rows')
         let [p1, p2, p3, p4, p5] = &mut ws.phi;
-        for i in 0..w {
-            let (i0, i1, i2) = pixel_moments_1d(s.a, x_first + i as f64);
-            ws.xp[i] = [i0, i1, i2, 0.0, 0.0];
-        }
-        for j in 0..h {
-            let (j0, j1, j2) = pixel_moments_1d(s.c, y_first + j as f64);
-            for i in 0..w {
+        let (xm, ym) = ws.xp[..w + h].split_at_mut(w);
+        axis_moments(s.a, x_first, xm);
+        axis_moments(s.c, y_first, ym);
+        for (j, &[j0, j1, j2, _, _]) in ym.iter().enumerate() {
+            for (i, &[i0, i1, i2, _, _]) in xm.iter().enumerate() {
                 let k = j * w + i;
-                let [i0, i1, i2, _, _] = ws.xp[i];
                 ws.e[k] = i0 * j0;
                 p1[k] = i1 * j0;
                 p2[k] = i0 * j1;

@@ -489,6 +489,10 @@ fn node_sums<S: Simd, const M: usize>(
         }
         Coupling::Symmetric([c, d, cs, ds, css, dss]) => {
             let half = M / 2;
+            // (sliced to their constant length: the unrolled loops' indices need no checks)
+            let n2 = half * half;
+            let (c, d, cs) = (&c[..n2], &d[..n2], &cs[..n2]);
+            let (ds, css, dss) = (&ds[..n2], &css[..n2], &dss[..n2]);
             // β± over the node pairs (l, M−1−l), and the centre's β
             let mut bp = [zero; M];
             let mut bm = [zero; M];
@@ -572,14 +576,21 @@ fn factored_rows<S: Simd, const M: usize>(simd: S, sums: FactoredSums) {
         let x = add(simd.splat_f64s(x_first + c0 as f64), lane_x);
         let two_x = add(x, x);
         let xx = mul(x, x);
+        // the column tables' lanes, the same for every row (loaded once per column group: at
+        // the window's last columns a partial load is a call)
+        let (mut pv, mut uv) = ([simd.splat_f64s(0.0); M], [simd.splat_f64s(0.0); M]);
+        for l in 0..M {
+            pv[l] = load(p, l * w);
+            uv[l] = load(u, l * w);
+        }
         for j in 0..h {
             // (plain loops, not `array::from_fn` / `map`: those are not inlined into the
             // target-feature function and run as calls)
             let mut be = [simd.splat_f64s(0.0); M];
             for (l, b) in be.iter_mut().enumerate() {
-                *b = simd.mul_f64s(simd.splat_f64s(bv[l * h + j]), load(p, l * w));
+                *b = simd.mul_f64s(simd.splat_f64s(bv[l * h + j]), pv[l]);
             }
-            let alpha = |k: usize| simd.mul_f64s(simd.splat_f64s(aq[k * h + j]), load(u, k * w));
+            let alpha = |k: usize| simd.mul_f64s(simd.splat_f64s(aq[k * h + j]), uv[k]);
             let acc = node_sums::<S, M>(simd, nodes, &coupling, &be, alpha);
             let gv = load(g, j * w);
             let [e, sx, sy, sxx, sxy, syy] = acc;
