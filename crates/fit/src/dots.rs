@@ -167,7 +167,7 @@ fn fit_dots_inner(
     }
     // pass 2: every dot again, to the full tolerance (with the weights check)
     let fits: Vec<DotFit> = first.iter().map(|i| i.fit).collect();
-    it.fixed_shape = median_shape_first(&first, &prev);
+    it.fixed_shape = median_shape_first(&first, &fits, &prev);
     hood.update(&first, cfg.sampling);
     hood.set_ghosts(it.ghosts(&fits, &hood));
     let (second, colour) = it.pass_red_black(&first, &fits, &mut hood, &mut canvas_buf);
@@ -435,16 +435,15 @@ fn shapes_the_median(f: &DotFit) -> bool {
         && f.params.is_valid()
 }
 
-/// [`median_shape`] of pass 1's records, whose narrow dots were fitted with ρ held at 0
+/// [`median_shape`] of pass 1's records (`fits`: their fits), whose narrow dots were fitted with ρ held at 0
 /// (`Fitter::solve_integrated`): ρ's median then over the fits that fitted it, or where fewer
 /// than [`MIN_SHAPE_FITS`] did, over the window moments (`moments`, the records pass 1 started
 /// from) of the dots whose fits held it: the covariance of the moments is not widened by the
 /// pixel, only their variances, which they are corrected for. (Issue 17: on a σ 0.3 × 0.45 px,
 /// ρ 0.5 lattice the held fits had ρ 0 where every dot is narrow; with the moments' median
 /// ρ they have 0.48.)
-fn median_shape_first(first: &[Item], moments: &[DotFit]) -> Option<[f64; 3]> {
-    let fits: Vec<DotFit> = first.iter().map(|i| i.fit).collect();
-    let mut shape = median_shape(&fits)?;
+fn median_shape_first(first: &[Item], fits: &[DotFit], moments: &[DotFit]) -> Option<[f64; 3]> {
+    let mut shape = median_shape(fits)?;
     let good = |i: &&Item| shapes_the_median(&i.fit);
     let fitted: Vec<f64> = first
         .iter()

@@ -989,29 +989,24 @@ pub(crate) fn eval_general(ws: &mut Workspace, theta: &Theta, noise: &NoiseModel
     }
 }
 
-/// Sparse rows of C: (basis index, coefficient) pairs, at most 3 per free parameter (the
-/// table in the module doc).
-fn sparse_rows(kind: Kind, theta: &Theta, s: &Shape) -> ([[(usize, f64); 3]; 7], [usize; 7]) {
+/// Sparse rows of C: three (basis index, coefficient) pairs per free parameter, zero
+/// coefficients padding the shorter ones (the table in the module doc).
+fn sparse_rows(kind: Kind, theta: &Theta, s: &Shape) -> [[(usize, f64); 3]; 7] {
     let am = theta[IA];
     let mut rows = [[(0usize, 0.0f64); 3]; 7];
-    let mut len = [0usize; 7];
     for (k, &p) in kind.free().iter().enumerate() {
-        let (r, l): ([(usize, f64); 3], usize) = match p {
-            IX => ([(1, am * s.a), (2, am * s.b), (0, 0.0)], 2),
-            IY => ([(1, am * s.b), (2, am * s.c), (0, 0.0)], 2),
-            IA => ([(0, 1.0), (0, 0.0), (0, 0.0)], 1),
-            IU if kind == Kind::Circular => {
-                ([(3, am * s.a), (4, 2.0 * am * s.b), (5, am * s.c)], 3)
-            }
-            IU => ([(3, am * s.a), (4, am * s.b), (0, 0.0)], 2),
-            IV => ([(4, am * s.b), (5, am * s.c), (0, 0.0)], 2),
-            IT => ([(3, am * s.ta), (4, am * s.tb), (5, am * s.tc)], 3),
-            _ => ([(6, 1.0), (0, 0.0), (0, 0.0)], 1),
+        rows[k] = match p {
+            IX => [(1, am * s.a), (2, am * s.b), (0, 0.0)],
+            IY => [(1, am * s.b), (2, am * s.c), (0, 0.0)],
+            IA => [(0, 1.0), (0, 0.0), (0, 0.0)],
+            IU if kind == Kind::Circular => [(3, am * s.a), (4, 2.0 * am * s.b), (5, am * s.c)],
+            IU => [(3, am * s.a), (4, am * s.b), (0, 0.0)],
+            IV => [(4, am * s.b), (5, am * s.c), (0, 0.0)],
+            IT => [(3, am * s.ta), (4, am * s.tb), (5, am * s.tc)],
+            _ => [(6, 1.0), (0, 0.0), (0, 0.0)],
         };
-        rows[k] = r;
-        len[k] = l;
     }
-    (rows, len)
+    rows
 }
 
 /// Normal matrix `N = C G Cᵀ` and gradient `g = C h` of the free parameters (n × n in the top
@@ -1021,12 +1016,12 @@ pub(crate) fn normal_equations(
     theta: &Theta,
     pass: &Pass,
 ) -> ([[f64; 7]; 7], [f64; 7]) {
-    // (every row padded to three entries with zero coefficients: fixed loops, no lengths;
+    // (every row three entries, zero coefficients padding: fixed loops, no lengths;
     // `C G` first, then its products with the rows of `C`. The double sum over entry pairs
     // with their lengths had been 6 % of `bostrack locate`'s instructions on bench/trackpy's
     // peak-SNR-6 scene: 693 → 681 M, σ 0.3 1,221 → 1,208 M; test
     // `normal_equations_are_the_dense_products`)
-    let (rows, _) = sparse_rows(kind, theta, &pass.shape);
+    let rows = sparse_rows(kind, theta, &pass.shape);
     let n = kind.n_free();
     let gram = &pass.gram;
     let mut cg = [[0.0; 7]; 7];

@@ -384,20 +384,20 @@ fn lm_loop(
         let clamped = bounds.project(&mut trial);
         kind.constrain(&mut trial);
         let finite = trial.iter().all(|v| v.is_finite());
+        // the step's length² in the Fisher metric and gᵀδ: the linearised model's cost at the
+        // trial is cost - 2 gᵀδ + δᵀ N δ
+        let (step2, gd) = (
+            quad_form(&nm, &step, n),
+            (0..n).map(|k| g[k] * step[k]).sum::<f64>(),
+        );
         // a Gauss-Newton step (λ small) shorter than the tolerance: take it and stop without
         // evaluating the trial (the cost cannot rise measurably over a step of 1e-2 standard
         // deviations, and what is left after it is of second order); the Fisher matrix is the
         // one at θ, a hundredth of a standard deviation away
-        if finite
-            && !clamped
-            && lambda <= 1e-2
-            && bounds.inside(&trial)
-            && quad_form(&nm, &step, n) <= tol2
-        {
+        if finite && !clamped && lambda <= 1e-2 && bounds.inside(&trial) && step2 <= tol2 {
             // residual sum of squares at the trial by the linearised model:
             // Σ w (r - Jδ)² = cost - 2 gᵀδ + δᵀ N δ (the unweighted one scaled alike)
-            let gd: f64 = (0..n).map(|k| g[k] * step[k]).sum();
-            let predicted = (cost - 2.0 * gd + quad_form(&nm, &step, n)).max(0.0);
+            let predicted = (cost - 2.0 * gd + step2).max(0.0);
             let ssr = if cost > 0.0 {
                 pass.ssr * predicted / cost
             } else {
@@ -419,9 +419,7 @@ fn lm_loop(
                 }
                 let m2 = quad_form(&nm, &taken, n);
                 let damped = lambda > 1.0;
-                let gd: f64 = (0..n).map(|k| g[k] * step[k]).sum();
-                let predicted = 2.0 * gd - quad_form(&nm, &step, n);
-                let gain = (cost - p.cost) / predicted.max(f64::MIN_POSITIVE);
+                let gain = (cost - p.cost) / (2.0 * gd - step2).max(f64::MIN_POSITIVE);
                 theta = trial;
                 cost = p.cost;
                 pass = p;
