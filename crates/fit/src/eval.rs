@@ -499,12 +499,19 @@ pub(crate) fn evaluate(
 /// Point-sampled pass with the moment accumulation ([`crate::simd::point_moments`]: per
 /// column over the rows, then folded with the columns' X powers).
 fn eval_point_moments(ws: &mut Workspace, theta: &Theta, s: &Shape, noise: &NoiseModel) -> Pass {
-    let (w, h) = (ws.w, ws.h);
     let x_first = ws.wx as f64 - theta[IX];
     let y_first = ws.wy as f64 - theta[IY];
     exp_grid(
-        s.a, s.b, s.c, x_first, y_first, w, h, &mut ws.e, &mut ws.v, &mut ws.q,
+        s.a, s.b, s.c, x_first, y_first, ws.w, ws.h, &mut ws.e, &mut ws.v, &mut ws.q,
     );
+    point_sums(ws, theta, s, noise)
+}
+
+/// The weighted sums of the point-sampled pass from the unit dot `E` at θ already in `ws.e`.
+fn point_sums(ws: &mut Workspace, theta: &Theta, s: &Shape, noise: &NoiseModel) -> Pass {
+    let (w, h) = (ws.w, ws.h);
+    let x_first = ws.wx as f64 - theta[IX];
+    let y_first = ws.wy as f64 - theta[IY];
     let variable = !noise.is_constant();
     // constant noise: accumulate with the 0/1 keep and apply 1/variance at the end
     let scale = if variable {
@@ -1172,7 +1179,8 @@ pub(crate) fn start_linear(
 }
 
 /// The largest relative change of the weights if they were set at θ (0 with constant noise);
-/// leaves the new weights in `w_new`.
+/// leaves the new weights in `w_new`. The dot is rendered with [`dot_factor`]; where the last
+/// evaluation was at θ, [`weight_change_at_model`] takes its model instead.
 pub(crate) fn weight_change(
     ws: &mut Workspace,
     theta: &Theta,
@@ -1183,16 +1191,50 @@ pub(crate) fn weight_change(
         return 0.0;
     }
     dot_factor(ws, theta, sampling);
+    let tmp = std::mem::take(&mut ws.tmp);
+    let change = change_to(&tmp[..ws.len()], ws, theta, noise);
+    ws.tmp = tmp;
+    change
+}
+
+/// [`weight_change`] at the θ of the last [`evaluate`], from the unit dot it left in `ws.e` (the
+/// exact model, no rendering).
+pub(crate) fn weight_change_at_model(ws: &mut Workspace, theta: &Theta, noise: &NoiseModel) -> f64 {
+    if noise.is_constant() {
+        return 0.0;
+    }
+    let e = std::mem::take(&mut ws.e);
+    let change = change_to(&e[..ws.len()], ws, theta, noise);
+    ws.e = e;
+    change
+}
+
+/// `w_new = keep / variance(bg + amp · unit)` and its largest relative change from `w_cur`.
+fn change_to(unit: &[f64], ws: &mut Workspace, theta: &Theta, noise: &NoiseModel) -> f64 {
     let (amp, bg) = (theta[IA], theta[IB]);
     let mut worst: f64 = 0.0;
-    for k in 0..ws.len() {
-        let w = ws.keep[k] / noise.variance(bg + amp * ws.tmp[k]);
+    for (k, &u) in unit.iter().enumerate() {
+        let w = ws.keep[k] / noise.variance(bg + amp * u);
         ws.w_new[k] = w;
         if ws.w_cur[k] > 0.0 {
             worst = worst.max((w / ws.w_cur[k] - 1.0).abs());
         }
     }
     if worst.is_nan() { f64::INFINITY } else { worst }
+}
+
+/// The pass of the last [`evaluate`] (at `theta`) summed again with the weights now in `w_cur`:
+/// the model and its basis are kept, only the weighted sums are redone.
+pub(crate) fn resum(
+    ws: &mut Workspace,
+    theta: &Theta,
+    sampling: Sampling,
+    noise: &NoiseModel,
+) -> Pass {
+    match sampling {
+        Sampling::Point => point_sums(ws, theta, &Shape::of(theta), noise),
+        Sampling::Integrated => eval_general(ws, theta, noise),
+    }
 }
 
 #[cfg(test)]
@@ -1393,6 +1435,84 @@ mod tests {
             assert!((a.grad[i] - b.grad[i]).abs() < 1e-9 * (1.0 + b.grad[i].abs()));
             for j in 0..7 {
                 assert!((a.gram[i][j] - b.gram[i][j]).abs() < 1e-9 * (1.0 + b.gram[i][j].abs()));
+            }
+        }
+    }
+
+    /// The weights from the last evaluation's model are those of the exact model (the
+    /// model crate's rendering), and the pass summed again with new weights equals a new
+    /// evaluation with them.
+    #[test]
+    fn reweighting_from_the_evaluated_model_equals_a_new_evaluation() {
+        let win = Window::new(6, 5, 9, 9);
+        let g = Gaussian2D {
+            sigma_x: 0.45,
+            sigma_y: 0.6,
+            ..dot()
+        };
+        let theta = theta_from_gaussian(&g);
+        let moved = theta_from_gaussian(&Gaussian2D {
+            x0: g.x0 + 0.2,
+            amplitude: 1.3 * g.amplitude,
+            ..g
+        });
+        let noise = NoiseModel {
+            read_variance: 100.0,
+            gain: 0.8,
+            offset: 20.0,
+        };
+        for sampling in [Sampling::Point, Sampling::Integrated] {
+            let mut ws = ws_for(win);
+            let data = bostrack_model::render(&g, win, sampling);
+            ws.data.copy_from_slice(&data);
+            ws.keep.fill(1.0);
+            ws.keep[7] = 0.0;
+            ws.data[7] = 0.0;
+            set_weights(&mut ws, &moved, sampling, &noise);
+            let _ = evaluate(&mut ws, &theta, sampling, Kind::Elliptical, &noise);
+            let w_start = ws.w_cur.clone();
+            let change = weight_change_at_model(&mut ws, &theta, &noise);
+            let model = bostrack_model::render(&gaussian_from_theta(&theta), win, sampling);
+            // (the quadrature: 1e-6 of the amplitude)
+            let tol = if sampling == Sampling::Point {
+                1e-12
+            } else {
+                1e-6
+            };
+            let mut worst: f64 = 0.0;
+            for k in 0..model.len() {
+                let want = ws.keep[k] / noise.variance(model[k]);
+                let d = (ws.w_new[k] - want).abs() / want.max(f64::MIN_POSITIVE);
+                assert!(d <= tol, "{sampling:?} {k}: {d}");
+                if w_start[k] > 0.0 {
+                    worst = worst.max((want / w_start[k] - 1.0).abs());
+                }
+            }
+            assert!(
+                worst > 0.05 && (change - worst).abs() <= tol,
+                "{sampling:?}"
+            );
+            // the weights at θ: the pass summed again equals the pass evaluated with them
+            let _ = evaluate(&mut ws, &theta, sampling, Kind::Elliptical, &noise);
+            let _ = weight_change_at_model(&mut ws, &theta, &noise);
+            std::mem::swap(&mut ws.w_cur, &mut ws.w_new);
+            let again = resum(&mut ws, &theta, sampling, &noise);
+            let fresh = evaluate(&mut ws, &theta, sampling, Kind::Elliptical, &noise);
+            assert!(
+                (again.cost - fresh.cost).abs() <= 1e-12 * fresh.cost,
+                "{sampling:?}"
+            );
+            for i in 0..7 {
+                assert!(
+                    (again.grad[i] - fresh.grad[i]).abs() <= 1e-9 * (1.0 + fresh.grad[i].abs())
+                );
+                for j in 0..7 {
+                    let (a, b) = (again.gram[i][j], fresh.gram[i][j]);
+                    assert!(
+                        (a - b).abs() <= 1e-12 * (1.0 + b.abs()),
+                        "{sampling:?} {i}{j}"
+                    );
+                }
             }
         }
     }
