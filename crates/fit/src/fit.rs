@@ -74,6 +74,14 @@ pub struct Fitter {
 /// (a singular fit of a window the detector found a dot in).
 const FIXED_SHAPE_MIN_Z: f64 = 5.0;
 
+/// Below this start σ (px) of an intermediate fit its 3 × 3 block is looked at for a narrow
+/// dot ([`Fitter::solve_auto`]); much above it the block cuts off the tails of a σ 0.75 px dot
+/// (at 0.8 bench/trackpy's σ 0.75 px scene took 4 % more instructions).
+const NARROW_START_SIGMA: f64 = 0.65;
+
+/// The largest |ρ| the one-step estimate of a fit made with ρ held at 0 reports.
+const RHO_ONE_STEP_MAX: f64 = 0.9;
+
 /// A lattice site the detector found no dot at holds one where a dot of the image's median
 /// shape centred at the site's predicted position has an amplitude of this many standard
 /// deviations (a linear fit: standard normal without a dot, 2.3e-4 per empty site)...
@@ -108,7 +116,7 @@ pub(crate) struct LastFit {
     pub point_fisher: Option<[[f64; 7]; 7]>,
     /// An intermediate fit of a narrow dot made with ρ held at 0 (`Fitter::solve_integrated`):
     /// its ρ says nothing of the dot's.
-    pub rho_held: bool,
+    pub rho_held: Option<f64>,
 }
 
 impl Default for LastFit {
@@ -118,7 +126,7 @@ impl Default for LastFit {
             dof: 0,
             moved: f64::INFINITY,
             point_fisher: None,
-            rho_held: false,
+            rho_held: None,
         }
     }
 }
@@ -342,12 +350,12 @@ impl Fitter {
                     self.kind
                 };
                 self.last = LastFit {
-                    rho_held: out.rho_held && !shape_fixed,
+                    rho_held: out.rho_held.filter(|_| !shape_fixed),
                     chi2: out.cost,
                     dof: self
                         .ws
                         .n_used
-                        .saturating_sub(kind.n_free() - usize::from(out.rho_held)),
+                        .saturating_sub(kind.n_free() - usize::from(out.rho_held.is_some())),
                     moved: match hint {
                         // (a shape held at another value than the hint's: moved by more than
                         // its free parameters say)
@@ -624,6 +632,19 @@ impl Fitter {
     ) -> Outcome {
         let start_sigma = conditional_sigma(&theta0);
         let intermediate = self.intermediate && start_sigma >= INTERMEDIATE_BLUR_SIGMA;
+        // a dot on a pixel edge has window moments up to ~0.6 px wide where its σ is 0.3: a
+        // start from its 3 × 3 block decides (issue 17: at σ 0.3 px those dots took the
+        // pixel-blurred fit and then the integrated one, ~14 evaluations, in pass 1)
+        if intermediate && self.holds_rho() && start_sigma < NARROW_START_SIGMA {
+            let mut t = theta0;
+            t[IT] = 0.0;
+            if crate::start::narrow_start(&self.ws, &mut t)
+                && conditional_sigma(&t) < INTERMEDIATE_BLUR_SIGMA
+            {
+                bounds.project(&mut t);
+                return self.solve_rho_held(t, bounds, noise);
+            }
+        }
         if self.integrated_at_start(&theta0, fitted_start) {
             return self.solve_integrated(theta0, bounds, noise);
         }
@@ -697,15 +718,24 @@ impl Fitter {
     /// scene: 1.69 → 1.22 G instructions for `locate`, RMS error 0.600 → 0.581 of the bound.
     fn solve_integrated(&mut self, theta0: Theta, bounds: &Bounds, noise: &NoiseModel) -> Outcome {
         // (with `neighbour_passes = 1` pass 1's fits are the final ones: the full model there)
-        if !(self.intermediate
-            && self.cfg.neighbour_passes > 1
-            && self.kind == Kind::Elliptical
-            && conditional_sigma(&theta0) < INTERMEDIATE_BLUR_SIGMA)
-        {
+        if !(self.holds_rho() && conditional_sigma(&theta0) < INTERMEDIATE_BLUR_SIGMA) {
             return self.solve_with(theta0, bounds, noise, Sampling::Integrated);
         }
         let mut t0 = theta0;
         t0[IT] = 0.0;
+        crate::start::narrow_start(&self.ws, &mut t0);
+        bounds.project(&mut t0);
+        self.solve_rho_held(t0, bounds, noise)
+    }
+
+    /// Whether an integrated fit of a narrow dot holds ρ at 0 ([`Fitter::solve_integrated`]).
+    fn holds_rho(&self) -> bool {
+        self.intermediate && self.cfg.neighbour_passes > 1 && self.kind == Kind::Elliptical
+    }
+
+    /// The axis-aligned integrated fit from `t0` (ρ = 0), with the elliptical model's Fisher
+    /// matrix at its solution and ρ one Gauss-Newton step from there.
+    fn solve_rho_held(&mut self, t0: Theta, bounds: &Bounds, noise: &NoiseModel) -> Outcome {
         self.kind = Kind::AxisAligned;
         let mut out = self.solve_with(t0, bounds, noise, Sampling::Integrated);
         self.kind = Kind::Elliptical;
@@ -716,12 +746,21 @@ impl Fitter {
             Kind::Elliptical,
             noise,
         );
+        let mut rho = f64::NAN;
         if pass.finite {
-            out.fisher = normal_equations(Kind::Elliptical, &out.theta, &pass).0;
+            let (nm, g) = normal_equations(Kind::Elliptical, &out.theta, &pass);
+            out.fisher = nm;
+            // ρ: one Gauss-Newton step of the full model from the solution at ρ = 0, for the
+            // held shape's median (not the fit's: as the next pass's start it cost that pass
+            // 5 % more instructions at σ 0.3 px)
+            rho = crate::solver::solve_damped(&nm, &g, 7, 0.0)
+                .map(|step| Kind::Elliptical.apply_step(&out.theta, &step)[IT].tanh())
+                .filter(|r| r.is_finite())
+                .map_or(f64::NAN, |r| r.clamp(-RHO_ONE_STEP_MAX, RHO_ONE_STEP_MAX));
         } else if out.status.is_ok() {
             out.status = FitStatus::NonFinite;
         }
-        out.rho_held = true;
+        out.rho_held = Some(rho);
         out
     }
 

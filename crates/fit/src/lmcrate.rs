@@ -176,6 +176,6 @@ pub(crate) fn solve_lm_crate(
         cost: pass.cost,
         bound: None,
         unbounded: false,
-        rho_held: false,
+        rho_held: None,
     }
 }

@@ -253,8 +253,9 @@ pub(crate) struct Outcome {
     /// A solve that converged to a minimum whose position bound exceeds a pixel (its status
     /// set to `Singular` by the caller).
     pub unbounded: bool,
-    /// An elliptical model's intermediate fit made with ρ held at 0 (`Fitter::solve_integrated`).
-    pub rho_held: bool,
+    /// An elliptical model's intermediate fit made with ρ held at 0 (`Fitter::solve_integrated`):
+    /// ρ one Gauss-Newton step of the full model from its solution (NaN: none).
+    pub rho_held: Option<f64>,
 }
 
 const LAMBDA_START: f64 = 1e-3;
@@ -396,7 +397,7 @@ fn lm_loop(
             cost: pass.cost,
             bound: None,
             unbounded: false,
-            rho_held: false,
+            rho_held: None,
         };
         (out, model)
     };
