@@ -2552,4 +2552,23 @@ mod tests {
         assert!(worst < 1.2e-7, "largest error {worst:e}");
         assert_eq!(erf_fast(-0.7), -erf_fast(0.7));
     }
+
+    /// The held ρ is the median where it differs from 0 by more than two standard errors, 0
+    /// where it does not.
+    #[test]
+    fn held_rho_is_zero_only_where_the_fits_show_no_correlation() {
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, Normal};
+        let mut rng = rand::rngs::StdRng::seed_from_u64(5);
+        let normal = Normal::new(0.0, 0.2).expect("a normal distribution");
+        // ρ estimates of sd 0.2 (narrow dots): a median of 400 has a standard error of 0.0125
+        let mut draw = |centre: f64| -> Vec<f64> {
+            (0..400).map(|_| centre + normal.sample(&mut rng)).collect()
+        };
+        assert_eq!(super::held_rho(&mut draw(0.005)), 0.0);
+        let r = super::held_rho(&mut draw(0.3));
+        assert!((r - 0.3).abs() < 0.05, "{r}");
+        let r = super::held_rho(&mut draw(-0.08));
+        assert!((r + 0.08).abs() < 0.05, "{r}");
+    }
 }
