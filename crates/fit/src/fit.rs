@@ -3,7 +3,8 @@
 use crate::config::{AUTO_SIGMA, Estimator, FitConfig, FitSampling, Solver};
 use crate::eval::{
     IB, IT, IU, IV, IX, IY, Kind, Theta, Workspace, conditional_sigma, evaluate,
-    gaussian_from_theta, gl_order, normal_equations, pixel_blur, pixel_unblur, theta_from_gaussian,
+    gaussian_from_theta, gl_order, normal_equations, pixel_blur, pixel_unblur,
+    quadrature_tolerance, theta_from_gaussian,
 };
 use crate::lmcrate::solve_lm_crate;
 use crate::solver::{Bounds, Outcome, position_bound, solve_fast};
@@ -773,7 +774,10 @@ impl Fitter {
     ) -> Outcome {
         let tolerance = self.tolerance();
         // the Gauss-Legendre order of the integrated model, fixed for the solve from its start
-        self.ws.gl_n = gl_order(theta0[IU].min(theta0[IV]).exp());
+        self.ws.gl_n = gl_order(
+            theta0[IU].min(theta0[IV]).exp(),
+            quadrature_tolerance(&theta0, noise),
+        );
         let out = match self.cfg.solver {
             Solver::Fast => solve_fast(
                 &mut self.ws,
