@@ -120,7 +120,8 @@ pub(crate) struct LastFit {
     /// the neighbour iteration needs to predict how far a change of the neighbours moves the dot.
     pub point_fisher: Option<[[f64; 7]; 7]>,
     /// An intermediate fit of a narrow dot made with ρ held at 0 (`Fitter::solve_integrated`):
-    /// its ρ says nothing of the dot's.
+    /// its ρ (0) says nothing of the dot's; the value is ρ one Gauss-Newton step from there
+    /// (NaN: none), which the held shape's median takes.
     pub rho_held: Option<f64>,
 }
 
@@ -739,7 +740,8 @@ impl Fitter {
     }
 
     /// The axis-aligned integrated fit from `t0` (ρ = 0), with the elliptical model's Fisher
-    /// matrix at its solution and ρ one Gauss-Newton step from there.
+    /// matrix at its solution and, in `Outcome::rho_held`, ρ one Gauss-Newton step from there
+    /// (the fit keeps ρ = 0).
     fn solve_rho_held(&mut self, t0: Theta, bounds: &Bounds, noise: &NoiseModel) -> Outcome {
         self.kind = Kind::AxisAligned;
         let mut out = self.solve_with(t0, bounds, noise, Sampling::Integrated);
