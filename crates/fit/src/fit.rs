@@ -642,12 +642,9 @@ impl Fitter {
         // start from its 3 × 3 block decides (issue 17: at σ 0.3 px those dots took the
         // pixel-blurred fit and then the integrated one, ~14 evaluations, in pass 1)
         if intermediate && self.holds_rho() && start_sigma < NARROW_START_SIGMA {
-            let mut t = theta0;
-            t[IT] = 0.0;
-            if crate::start::narrow_start(&self.ws, &mut t)
-                && conditional_sigma(&t) < INTERMEDIATE_BLUR_SIGMA
-            {
-                bounds.project(&mut t);
+            // (where the block gives no profile the start keeps its σ, ≥ 0.5 px with ρ = 0)
+            let t = self.rho_held_start(theta0, bounds);
+            if conditional_sigma(&t) < INTERMEDIATE_BLUR_SIGMA {
                 return self.solve_rho_held(t, bounds, noise);
             }
         }
@@ -727,11 +724,18 @@ impl Fitter {
         if !(self.holds_rho() && conditional_sigma(&theta0) < INTERMEDIATE_BLUR_SIGMA) {
             return self.solve_with(theta0, bounds, noise, Sampling::Integrated);
         }
-        let mut t0 = theta0;
-        t0[IT] = 0.0;
-        crate::start::narrow_start(&self.ws, &mut t0);
-        bounds.project(&mut t0);
+        let t0 = self.rho_held_start(theta0, bounds);
         self.solve_rho_held(t0, bounds, noise)
+    }
+
+    /// The start of [`Fitter::solve_rho_held`]: `theta0` with ρ = 0, its centre and σ from the
+    /// 3 × 3 block where that gives a profile ([`crate::start::narrow_start`]), projected.
+    fn rho_held_start(&self, theta0: Theta, bounds: &Bounds) -> Theta {
+        let mut t = theta0;
+        t[IT] = 0.0;
+        crate::start::narrow_start(&self.ws, &mut t);
+        bounds.project(&mut t);
+        t
     }
 
     /// Whether an integrated fit of a narrow dot holds ρ at 0 ([`Fitter::solve_integrated`]).
