@@ -971,7 +971,7 @@ impl<'a> Iteration<'a> {
             .into_iter()
             .zip(black)
             .zip(first)
-            .map(|((r, b), f)| r.or(b).unwrap_or_else(|| Item::kept(f.fit)))
+            .map(|((r, b), f)| r.or(b).map_or_else(|| Item::kept(f.fit), |it| *it))
             .collect();
         (items, colour)
     }
@@ -1107,7 +1107,7 @@ impl<'a> Iteration<'a> {
                             *k += 1;
                         }
                         *last = n.moved;
-                        *it = n;
+                        *it = *n;
                         refitted += 1;
                     }
                     // not selected, or predicted to move by less than the tolerance
@@ -1226,7 +1226,7 @@ impl<'a> Iteration<'a> {
         self.pass_with(prev, None, kind, tails, canvas_buf, false, hood, None)
             .into_iter()
             .zip(prev)
-            .map(|(it, p)| it.unwrap_or_else(|| Item::kept(*p)))
+            .map(|(it, p)| it.map_or_else(|| Item::kept(*p), |it| *it))
             .collect()
     }
 
@@ -1244,7 +1244,7 @@ impl<'a> Iteration<'a> {
         windowed: bool,
         hood: &Neighbourhood,
         check: Option<&[Item]>,
-    ) -> Vec<Option<Item>> {
+    ) -> Vec<Option<Box<Item>>> {
         let (img, mask, seeds, cfg, noise) =
             (self.img, self.mask, self.seeds, self.cfg, self.noise);
         // a first pass from prior fits: the Fisher matrices for its steps
@@ -1369,6 +1369,9 @@ impl<'a> Iteration<'a> {
                     Some(Item::from_fitter(fit, f, kind.looked_at))
                 },
             )
+            // (boxed: a pass's records of the dots it did not refit, most of them in the later
+            // passes, are then a null pointer each instead of a whole record to move)
+            .map(|it| it.map(Box::new))
             .collect();
         if let Some(c) = canvas {
             *canvas_buf = c.values;
@@ -1486,7 +1489,12 @@ impl<'a> Neighbourhood<'a> {
 
     /// [`Neighbourhood::set`] for every record a pass refitted (`None`: kept), each new fit
     /// also written into `fits`.
-    fn apply(&mut self, refitted: &[Option<Item>], fits: &mut [DotFit], sampling: FitSampling) {
+    fn apply(
+        &mut self,
+        refitted: &[Option<Box<Item>>],
+        fits: &mut [DotFit],
+        sampling: FitSampling,
+    ) {
         let (gate, index) = (&self.gate, &self.index);
         let n = refitted.len();
         let reindex = self.models[..n]
@@ -2350,9 +2358,22 @@ impl NeighbourModel {
     }
 }
 
+/// From here on [`erf_fast`] is ±1 exactly in `f64` (its erfc below half an ulp of 1): returned
+/// without the series (about half of a screening share's arguments lie beyond).
+const ERF_ONE: f64 = 6.0;
+
 /// erf(x) to 1.2e-7 absolute (Numerical Recipes' `erfcc`, Chebyshev fit of erfc): a screening
 /// share needs no more, at a third of the cost of `libm::erf`.
 fn erf_fast(x: f64) -> f64 {
+    if x.abs() >= ERF_ONE {
+        // (t·exp(p) < 2.2e-17 in the series: 1 − erfc rounds to 1 exactly)
+        return x.signum();
+    }
+    erf_series(x)
+}
+
+/// The series of [`erf_fast`], for every `x`.
+fn erf_series(x: f64) -> f64 {
     let z = x.abs();
     let t = 1.0 / (1.0 + 0.5 * z);
     let p = -z * z - 1.265_512_23
@@ -2551,6 +2572,22 @@ mod tests {
         }
         assert!(worst < 1.2e-7, "largest error {worst:e}");
         assert_eq!(erf_fast(-0.7), -erf_fast(0.7));
+    }
+
+    /// Beyond `ERF_ONE` the series itself gives ±1 exactly: the shortcut changes no share.
+    #[test]
+    fn erf_fast_is_one_exactly_where_it_skips_the_series() {
+        let series = super::erf_series;
+        for k in 0..=40_000 {
+            let x = super::ERF_ONE + k as f64 * 1e-3;
+            assert_eq!(series(x), 1.0, "{x}");
+            assert_eq!(series(-x), -1.0, "{x}");
+            assert_eq!(erf_fast(x), series(x));
+            assert_eq!(erf_fast(-x), series(-x));
+        }
+        // and just below it the series is still used (not yet 1)
+        assert!(erf_fast(5.0) < 1.0);
+        assert_eq!(erf_fast(f64::INFINITY), 1.0);
     }
 
     /// The held ρ is the median where it differs from 0 by more than two standard errors, 0
