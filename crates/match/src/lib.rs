@@ -73,4 +73,7 @@ mod validate;
 pub use dots::{MatchConfig, MatchMode, MatchedBy, Matches, Pair, match_dots};
 pub use error::MatchError;
 pub use nearest::{NearestConfig, PointMatches, match_points};
-pub use validate::{MedianTest, Validation, ValidationConfig, VectorCheck, Verdict, validate};
+pub use validate::{
+    MedianTest, NeighbourLists, Validation, ValidationConfig, VectorCheck, Verdict, validate,
+    validate_with,
+};

@@ -116,12 +116,111 @@ impl Validation {
     }
 }
 
+/// Extra neighbours a [`NeighbourLists`] keeps per position beyond those the median test
+/// uses, for the vectors that the test leaves out (not finite, above the threshold).
+const SPARE: usize = 4;
+
+/// Every position's nearest other positions, found once for validating many sets of vectors
+/// at the same positions (the reference positions of a campaign's frames) with
+/// [`validate_with`]: each frame's median test then takes its neighbours from the lists
+/// instead of a spatial index, with the same result (where a list cannot decide, its dot is
+/// searched as without them).
+#[derive(Clone, Debug)]
+pub struct NeighbourLists {
+    positions: Vec<[f64; 2]>,
+    /// Per position, the ids of its nearest others by (distance, id), and the distance
+    /// (squared) below which every other position is in the list (infinite: all are).
+    start: Vec<usize>,
+    ids: Vec<(f64, u32)>,
+    complete_below: Vec<f64>,
+}
+
+impl NeighbourLists {
+    /// The lists of `positions` for the median test with `neighbours` neighbours (see
+    /// [`MedianTest::neighbours`]); positions that are not finite have none.
+    pub fn new(positions: &[[f64; 2]], neighbours: usize) -> NeighbourLists {
+        let keep = neighbours.saturating_add(SPARE);
+        let set = PointSet::new(positions, |_| true);
+        let per: Vec<(Vec<(f64, u32)>, f64)> = positions
+            .par_iter()
+            .enumerate()
+            .with_min_len(256)
+            .map_init(Vec::new, |nb, (i, p)| {
+                set.nearest_n(p, keep, Some(i), nb);
+                nb.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+                // fewer than asked: every finite other position is in the list
+                let below = if nb.len() < keep {
+                    f64::INFINITY
+                } else {
+                    nb.last().map_or(f64::INFINITY, |l| l.0)
+                };
+                (nb.clone(), below)
+            })
+            .collect();
+        let mut start = Vec::with_capacity(per.len() + 1);
+        let mut ids = Vec::with_capacity(per.iter().map(|p| p.0.len()).sum());
+        let mut complete_below = Vec::with_capacity(per.len());
+        start.push(0);
+        for (l, b) in per {
+            ids.extend(l);
+            start.push(ids.len());
+            complete_below.push(b);
+        }
+        NeighbourLists {
+            positions: positions.to_vec(),
+            start,
+            ids,
+            complete_below,
+        }
+    }
+
+    /// Whether the lists were made for `positions` (the same values, to the bit).
+    fn made_for(&self, positions: &[[f64; 2]]) -> bool {
+        self.positions.len() == positions.len()
+            && self
+                .positions
+                .iter()
+                .zip(positions)
+                .all(|(a, b)| a.map(f64::to_bits) == b.map(f64::to_bits))
+    }
+
+    /// Into `out`, the `k` nearest positions to position `i` among those `eligible`, itself
+    /// left out, by (distance, id), if its list decides them: every position closer than the
+    /// last one taken is in the list. (A list is the first of all positions by (distance, id),
+    /// so the first `k` eligible in it are always those; the check is kept as a guard.)
+    fn nearest(&self, i: usize, k: usize, eligible: &[bool], out: &mut Vec<(f64, u32)>) -> bool {
+        out.clear();
+        let list = &self.ids[self.start[i]..self.start[i + 1]];
+        for &(d, q) in list {
+            if eligible[q as usize] {
+                out.push((d, q));
+                if out.len() == k {
+                    return d < self.complete_below[i];
+                }
+            }
+        }
+        // fewer than k: decided only where the list holds every other position
+        self.complete_below[i] == f64::INFINITY
+    }
+}
+
 /// Validate displacement vectors `displacements[i]` located at `positions[i]` (px; use the
 /// reference positions). First the threshold, then the median test, whose neighbourhoods
 /// leave out vectors that are not finite or failed the threshold.
 ///
 /// Errors for slices of different lengths or a bad configuration.
 pub fn validate(
+    positions: &[[f64; 2]],
+    displacements: &[[f64; 2]],
+    cfg: &ValidationConfig,
+) -> Result<Validation, MatchError> {
+    validate_with(None, positions, displacements, cfg)
+}
+
+/// [`validate`], with the median test's neighbours from `lists` where they were made for these
+/// `positions` (the same values; otherwise they are not used). The result is the same.
+pub fn validate_with(
+    lists: Option<&NeighbourLists>,
     positions: &[[f64; 2]],
     displacements: &[[f64; 2]],
     cfg: &ValidationConfig,
@@ -191,7 +290,11 @@ pub fn validate(
         let eligible: Vec<bool> = (0..n)
             .map(|i| finite(i) && checks[i].verdict != Verdict::TooLarge)
             .collect();
-        let set = PointSet::new(positions, |i| eligible[i]);
+        let lists = lists.filter(|l| l.made_for(positions));
+        // (the spatial index of the eligible positions: without lists, or for a dot its list
+        // cannot decide)
+        let tree = std::sync::OnceLock::new();
+        let set = || tree.get_or_init(|| PointSet::new(positions, |i| eligible[i]));
         // every dot's test is independent: rayon over dots, scratch buffers per worker
         checks.par_iter_mut().enumerate().for_each_init(
             || {
@@ -205,7 +308,9 @@ pub fn validate(
                 if !finite(i) {
                     return;
                 }
-                set.nearest_n(&positions[i], k, Some(i), nb);
+                if !lists.is_some_and(|l| l.nearest(i, k, &eligible, nb)) {
+                    set().nearest_n(&positions[i], k, Some(i), nb);
+                }
                 if nb.len() < 3 {
                     return; // keeps the threshold's verdict (Valid, TooLarge or NotTested)
                 }

@@ -230,3 +230,90 @@ fn threshold_replacement_and_untested_vectors() {
     };
     assert!(validate(&pos, &d, &bad).is_err());
 }
+
+/// The median test with neighbour lists made once for the positions gives what it gives
+/// without them, vector for vector: on an exact lattice (every distance tied four ways), a
+/// jittered one and random points, with vectors that are not finite, above the threshold or
+/// outliers, which the lists' neighbourhoods must skip as the spatial index does; positions
+/// other than the lists' are searched as before.
+#[test]
+fn neighbour_lists_give_the_same_validation() {
+    use bostrack_match::{NeighbourLists, Validation, validate_with};
+    // equal checks, and replaced vectors equal to the bit (the vectors that are not finite
+    // stay NaN in both)
+    let same = |a: &Validation, b: &Validation| {
+        let bits = |v: &Validation| {
+            v.replaced
+                .as_ref()
+                .map(|r| r.iter().map(|d| d.map(f64::to_bits)).collect::<Vec<_>>())
+        };
+        a.checks == b.checks && bits(a) == bits(b)
+    };
+    let mut rng = StdRng::seed_from_u64(17);
+    let normal = Normal::new(0.0, 0.05).expect("a normal distribution");
+    let lattice = |jitter: f64, rng: &mut StdRng| -> Vec<[f64; 2]> {
+        let mut v = Vec::new();
+        for j in 0..30 {
+            for i in 0..30 {
+                v.push([
+                    8.0 * i as f64 + jitter * rng.random_range(-1.0..1.0),
+                    8.0 * j as f64 + jitter * rng.random_range(-1.0..1.0),
+                ]);
+            }
+        }
+        v
+    };
+    let random: Vec<[f64; 2]> = (0..900)
+        .map(|_| [rng.random_range(0.0..240.0), rng.random_range(0.0..240.0)])
+        .collect();
+    let exact = lattice(0.0, &mut rng);
+    let jittered = lattice(1.0, &mut rng);
+    let mut used_lists = 0;
+    for (name, pos) in [("exact", exact), ("jittered", jittered), ("random", random)] {
+        for k in [3, 8, 12] {
+            let lists = NeighbourLists::new(&pos, k);
+            for round in 0..3 {
+                let disp: Vec<[f64; 2]> = pos
+                    .iter()
+                    .map(|p| {
+                        let d = field(Field::Vortex, *p);
+                        let u: f64 = rng.random_range(0.0..1.0);
+                        if u < 0.05 {
+                            [f64::NAN, f64::NAN]
+                        } else if u < 0.15 {
+                            [d[0] + 5.0, d[1] - 4.0] // an outlier, above the threshold too
+                        } else {
+                            [
+                                d[0] + normal.sample(&mut rng),
+                                d[1] + normal.sample(&mut rng),
+                            ]
+                        }
+                    })
+                    .collect();
+                let cfg = ValidationConfig {
+                    max_displacement: (round > 0).then_some(5.0),
+                    median_test: Some(MedianTest {
+                        neighbours: k,
+                        ..MedianTest::default()
+                    }),
+                    replace: round == 2,
+                };
+                let plain = validate(&pos, &disp, &cfg).expect("valid input");
+                let listed = validate_with(Some(&lists), &pos, &disp, &cfg).expect("valid input");
+                assert!(same(&plain, &listed), "{name}, k {k}, round {round}");
+                assert!(plain.outliers() > 0, "{name}");
+                used_lists += 1;
+                // positions that are not the lists': the lists are not used
+                let moved: Vec<[f64; 2]> = pos.iter().map(|p| [p[0] + 0.5, p[1]]).collect();
+                assert!(
+                    same(
+                        &validate(&moved, &disp, &cfg).expect("valid input"),
+                        &validate_with(Some(&lists), &moved, &disp, &cfg).expect("valid input"),
+                    ),
+                    "{name}, k {k}, moved"
+                );
+            }
+        }
+    }
+    assert_eq!(used_lists, 27);
+}

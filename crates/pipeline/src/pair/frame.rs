@@ -10,7 +10,7 @@ use bostrack_core::{DotFit, DotFlags, Image};
 use bostrack_displacement::{DisplacementConfig, PairDot, PairInput, pair_dots};
 use bostrack_match::{
     MatchConfig, MatchMode, MatchedBy, Matches, MedianTest, NearestConfig, ValidationConfig,
-    match_dots, validate,
+    match_dots, validate_with,
 };
 use std::path::Path;
 
@@ -322,9 +322,11 @@ pub fn process_image(
         }),
         replace: false,
     };
-    let v = validate(&pos, &disp, &vcfg).map_err(|e| PipelineError::Match {
-        path: path.clone(),
-        message: e.to_string(),
+    let v = validate_with(Some(&ctx.neighbour_lists), &pos, &disp, &vcfg).map_err(|e| {
+        PipelineError::Match {
+            path: path.clone(),
+            message: e.to_string(),
+        }
     })?;
     let mut partner: Vec<Option<usize>> = vec![None; n];
     let mut flags = vec![DotFlags::NONE; n];

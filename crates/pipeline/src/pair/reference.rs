@@ -76,6 +76,9 @@ pub struct ReferenceContext {
     /// The model the reference fits were weighted with (`noise`, or `noise / K` for a
     /// stack-mean reference image).
     pub(crate) reference_noise: NoiseModel,
+    /// The reference positions' nearest neighbours for every frame's median test (the frames'
+    /// vectors sit at the reference positions).
+    pub(crate) neighbour_lists: bostrack_match::NeighbourLists,
     /// Per reference fit, the stack statistics (`None` everywhere without stack fits).
     pub(crate) stack_stats: Vec<Option<ReferenceStats>>,
     pub(crate) stack: Option<StackSummary>,
@@ -387,11 +390,17 @@ impl ReferenceContext {
             }));
         }
 
+        let positions: Vec<[f64; 2]> = fits.iter().map(|d| [d.params.x0, d.params.y0]).collect();
+        let neighbour_lists = bostrack_match::NeighbourLists::new(
+            &positions,
+            bostrack_match::MedianTest::default().neighbours,
+        );
         let mut ctx = ReferenceContext {
             source,
             size: (w, h),
             mask,
             detection,
+            neighbour_lists,
             stack_stats: vec![None; fits.len()],
             fits,
             memory: memory_for_frames(memory, &noise, &reference_noise),
