@@ -9,7 +9,8 @@
 //!
 //! With `PAIR_ONCE_NO_FRAME` set it stops after the reference side: the instructions of one frame
 //! are those of a run without it less those of a run with it (`valgrind --tool=callgrind`, one
-//! thread), a count the machine's load does not disturb.
+//! thread), a count the machine's load does not disturb. With `PAIR_ONCE_FRAMES=N` the frame is
+//! processed N times (a profile then shows mostly the frame's work).
 
 use bostrack_fit::Solver;
 use bostrack_pipeline::{Plan, Quantities, ReferenceContext, load_config, process_frame};
@@ -42,6 +43,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let ctx = ReferenceContext::prepare(&plan)?;
     if std::env::var_os("PAIR_ONCE_NO_FRAME").is_some() {
         return Ok(());
+    }
+    // (`PAIR_ONCE_FRAMES=N`: the frame N times, for a profile of the frame's work)
+    let repeats: usize = std::env::var("PAIR_ONCE_FRAMES")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(1);
+    for _ in 1..repeats {
+        process_frame(&ctx, &plan, &plan.gradients[0])?;
     }
     let r = process_frame(&ctx, &plan, &plan.gradients[0])?;
     println!(
