@@ -1128,12 +1128,13 @@ impl<'a> Iteration<'a> {
             let (w, h) = (self.img.width(), self.img.height());
             // each dot's overlapping neighbours (most dots of a sparse target have none): the
             // links' shares screen (they are a few passes old), the current models decide
-            let groups: Vec<Option<(JointDot, Vec<JointDot>)>> = self
+            // (only the dots with a group: a record per dot, ~0.5 kB, cost its pages)
+            let groups: Vec<(usize, JointDot, Vec<JointDot>)> = self
                 .seeds
                 .par_iter()
                 .enumerate()
                 .with_min_len(64)
-                .map(|(i, s)| {
+                .filter_map(|(i, s)| {
                     let f = &fits[i];
                     if !f.crlb_x.is_finite() || absent(s, f) {
                         return None;
@@ -1161,10 +1162,10 @@ impl<'a> Iteration<'a> {
                     if nbs.is_empty() {
                         return None;
                     }
-                    Some((JointDot::new(f, win, kind)?, nbs))
+                    Some((i, JointDot::new(f, win, kind)?, nbs))
                 })
                 .collect();
-            if groups.iter().all(Option::is_none) {
+            if groups.is_empty() {
                 return finish(items, self.cfg);
             }
             // which pixels a fit may use (read only for the few dots with a joint group: a
@@ -1172,15 +1173,12 @@ impl<'a> Iteration<'a> {
             let keep = |x: i64, y: i64| crate::joint::usable(self.img, self.mask, x, y);
             let bounds: Vec<Option<[f64; 2]>> = groups
                 .par_iter()
-                .map(|g| {
-                    let (dot, nbs) = g.as_ref()?;
-                    crate::joint::joint_bound(kind, dot, nbs, self.noise, &keep)
-                })
+                .map(|(_, dot, nbs)| crate::joint::joint_bound(kind, dot, nbs, self.noise, &keep))
                 .collect();
-            for (it, b) in items.iter_mut().zip(bounds) {
+            for ((i, _, _), b) in groups.iter().zip(bounds) {
                 if let Some([bx, by]) = b {
-                    it.fit.crlb_x = bx;
-                    it.fit.crlb_y = by;
+                    items[*i].fit.crlb_x = bx;
+                    items[*i].fit.crlb_y = by;
                 }
             }
         }
