@@ -603,23 +603,15 @@ struct Look {
     ssr: f64,
 }
 
-/// How far (in standard deviations of its position: the Mahalanobis length of the position
-/// part) the dot `fit` would move if refitted to the window's data as loaded in `ws` (its
-/// neighbours' current models subtracted): one Gauss-Newton step `F⁻¹ Σ w ∇μ r` from it, with
-/// the Fisher matrix of `looked` (its fit's, or the map's at the reference's fit). At the last fit's data the step is below the fit's
-/// tolerance (`[fit] tolerance`, 0.05 standard deviations, or of second order after its last
-/// step), so what it measures is how far the neighbours' changes since then pull the dot.
-/// `None` where that cannot be predicted (a fit at a bound, held in shape or not converged, not
-/// in the point model's range, another window).
-fn look(
-    ws: &mut crate::eval::Workspace,
+/// The parameters a [`look`] at `fit` evaluates the dot at (its point-model θ, pixel-blurred
+/// for `auto`), `None` where a look cannot predict the refit (a fit at a bound, held in shape
+/// or not converged, not in the point model's range, another window than `looked`'s).
+fn look_theta(
+    ws: &crate::eval::Workspace,
     fit: &DotFit,
     looked: &Looked,
-    kind: crate::eval::Kind,
     sampling: FitSampling,
-    noise: &NoiseModel,
-) -> Option<Look> {
-    use crate::eval::{IB, IX, IY};
+) -> Option<crate::eval::Theta> {
     if fit.status != FitStatus::Converged
         || fit
             .flags
@@ -633,13 +625,58 @@ fn look(
     if sampling == FitSampling::Auto && conditional_sigma(&th) < AUTO_SIGMA {
         return None;
     }
-    let tb = if sampling == FitSampling::Auto {
+    Some(if sampling == FitSampling::Auto {
         pixel_blur(&th)
     } else {
         th
+    })
+}
+
+/// Adds `amp` times the rendering in `ws.tmp` (over the window) back to the data over the
+/// pixels of `b` (where a [`Canvas`] holds the dot): what [`Canvas::add_back`] adds, from the
+/// window's rendering instead of one of its own.
+fn add_inside(ws: &mut crate::eval::Workspace, b: PixelBox, amp: f64) {
+    let (wx, wy) = (ws.wx, ws.wy);
+    let clip = |lo: usize, hi: usize, w0: i64, n: usize| {
+        let a = (lo as i64 - w0).max(0);
+        let z = (hi as i64 - w0).min(n as i64 - 1);
+        (a <= z).then_some((a as usize, z as usize))
     };
+    let (Some((i0, i1)), Some((j0, j1))) = (
+        clip(b.x_lo, b.x_hi, wx, ws.w),
+        clip(b.y_lo, b.y_hi, wy, ws.h),
+    ) else {
+        return;
+    };
+    for j in j0..=j1 {
+        for k in j * ws.w + i0..=j * ws.w + i1 {
+            ws.data[k] += ws.keep[k] * amp * ws.tmp[k];
+        }
+    }
+}
+
+/// How far (in standard deviations of its position: the Mahalanobis length of the position
+/// part) the dot `fit` would move if refitted to the window's data as loaded in `ws` (its
+/// neighbours' current models subtracted): one Gauss-Newton step `F⁻¹ Σ w ∇μ r` from it, with
+/// the Fisher matrix of `looked` (its fit's, or the map's at the reference's fit). At the last fit's data the step is below the fit's
+/// tolerance (`[fit] tolerance`, 0.05 standard deviations, or of second order after its last
+/// step), so what it measures is how far the neighbours' changes since then pull the dot.
+/// `None` where that cannot be predicted (a fit at a bound, held in shape or not converged, not
+/// in the point model's range, another window).
+fn look(
+    ws: &mut crate::eval::Workspace,
+    tb: crate::eval::Theta,
+    looked: &Looked,
+    kind: crate::eval::Kind,
+    noise: &NoiseModel,
+    own_back: Option<PixelBox>,
+) -> Option<Look> {
+    use crate::eval::{IB, IX, IY};
     crate::eval::dot_factor(ws, &tb, Sampling::Point);
     let (amp, bg) = (tb[IA], tb[IB]);
+    if let Some(b) = own_back {
+        add_inside(ws, b, amp);
+    }
     // Σ w r·basis (basis = E·{1, X, Y, X², XY, Y²}, 1), Σ w r² and Σ r², r = data − μ
     let mut g = [0.0f64; 7];
     let (mut chi2, mut ssr) = (0.0, 0.0);
@@ -1287,25 +1324,6 @@ impl<'a> Iteration<'a> {
                     let win = Window::new(f.ws.wx, f.ws.wy, f.ws.w, f.ws.h);
                     // (the tails were rendered without the ghosts)
                     let tails = tails.filter(|_| !hood.ghost_reaches(win, near));
-                    match (tails.and_then(|t| t.for_window(i, win)), &canvas) {
-                        (Some((sum, _)), _) => {
-                            let ws = &mut f.ws;
-                            for (k, v) in sum.iter().enumerate() {
-                                ws.data[k] -= ws.keep[k] * v;
-                            }
-                        }
-                        (None, Some(canvas)) => {
-                            canvas.subtract_neighbours(&mut f.ws, i, hood, near);
-                        }
-                        (None, None) => {
-                            for_each_neighbour(&mut f.ws, i, hood, near, |ws, amp| {
-                                let n = ws.len();
-                                for k in 0..n {
-                                    ws.data[k] -= ws.keep[k] * amp * ws.tmp[k];
-                                }
-                            });
-                        }
-                    }
                     // a later pass: the look at the dot's last fit (left as it is below the
                     // tolerance); a first pass from prior fits (a stack image, a gradient
                     // frame): one Gauss-Newton step from the prior with its Fisher matrix (the
@@ -1330,8 +1348,46 @@ impl<'a> Iteration<'a> {
                                 (from, l, None, keep)
                             }),
                     };
+                    // the parameters a look evaluates the dot at; with a canvas, where they are
+                    // those of the dot's own model there, the look adds that model back to the
+                    // window from its own rendering (the same dot: one rendering, not two)
+                    let look_at = from.as_ref().and_then(|(from, looked, ..)| {
+                        look_theta(&f.ws, from, looked, cfg.sampling)
+                    });
+                    let own_back = look_at.and(canvas.as_ref()).and_then(|c| {
+                        let m = hood.models[i].as_ref()?;
+                        (Some(m.theta) == look_at && m.sampling == Sampling::Point)
+                            .then_some(c.boxes[i])
+                            .flatten()
+                    });
+                    match (tails.and_then(|t| t.for_window(i, win)), &canvas) {
+                        (Some((sum, _)), _) => {
+                            let ws = &mut f.ws;
+                            for (k, v) in sum.iter().enumerate() {
+                                ws.data[k] -= ws.keep[k] * v;
+                            }
+                        }
+                        (None, Some(canvas)) => {
+                            canvas.subtract_neighbours(
+                                &mut f.ws,
+                                i,
+                                hood,
+                                near,
+                                own_back.is_none(),
+                            );
+                        }
+                        (None, None) => {
+                            for_each_neighbour(&mut f.ws, i, hood, near, |ws, amp| {
+                                let n = ws.len();
+                                for k in 0..n {
+                                    ws.data[k] -= ws.keep[k] * amp * ws.tmp[k];
+                                }
+                            });
+                        }
+                    }
                     if let Some((from, looked, still, keep)) = from {
-                        let l = look(&mut f.ws, &from, looked, fkind, cfg.sampling, noise);
+                        let l = look_at
+                            .and_then(|tb| look(&mut f.ws, tb, looked, fkind, noise, own_back));
                         if l.as_ref().zip(still).is_some_and(|(l, t)| l.moves <= t) {
                             return None;
                         }
@@ -1876,6 +1932,7 @@ impl Canvas {
         i: usize,
         hood: &Neighbourhood,
         near: &mut Vec<usize>,
+        own: bool,
     ) -> u32 {
         let (w, h) = (ws.w, ws.h);
         if w == 0 || h == 0 {
@@ -1894,7 +1951,9 @@ impl Canvas {
             }
         }
         let win = Window::new(ws.wx, ws.wy, w, h);
-        self.add_back(ws, i, &hood.models);
+        if own {
+            self.add_back(ws, i, &hood.models);
+        }
         let mut count = 0;
         hood.touching(i, win, near, |j, _, same| {
             if same {
