@@ -234,13 +234,13 @@ pub fn refit_dots_report(
 /// Fisher matrix of its last least-squares fit (point-model fits; see [`fit_dots_remembered`]).
 #[derive(Clone, Debug, Default)]
 pub struct FitMemory {
-    looked: Vec<Option<Looked>>,
+    looked: Vec<Option<std::sync::Arc<Looked>>>,
 }
 
 impl FitMemory {
     fn of(items: &[Item]) -> FitMemory {
         FitMemory {
-            looked: items.iter().map(|i| i.looked.as_deref().cloned()).collect(),
+            looked: items.iter().map(|i| i.looked.clone()).collect(),
         }
     }
 
@@ -263,7 +263,10 @@ impl FitMemory {
             looked: self
                 .looked
                 .iter()
-                .map(|l| l.as_ref().map(|l| l.scaled(1.0 / ratio)))
+                .map(|l| {
+                    l.as_ref()
+                        .map(|l| std::sync::Arc::new(l.scaled(1.0 / ratio)))
+                })
                 .collect(),
         }
     }
@@ -867,7 +870,7 @@ struct Iteration<'a> {
     /// For a first pass from prior fits: per dot, the Fisher matrix to take one Gauss-Newton
     /// step from its prior with instead of fitting it (the stack's coupling map, or the
     /// reference's own fits for a gradient frame: [`FitMemory`]).
-    first_steps: Option<&'a [Option<Looked>]>,
+    first_steps: Option<&'a [Option<std::sync::Arc<Looked>>]>,
 }
 
 impl<'a> Iteration<'a> {
@@ -1344,8 +1347,9 @@ impl<'a> Iteration<'a> {
                                 let mut from = *own;
                                 from.index = s.index;
                                 from.flags = flags | s.flags;
-                                let keep = kind.looked_at.then(|| std::sync::Arc::new(l.clone()));
-                                (from, l, None, keep)
+                                // (the memory's matrix itself, shared)
+                                let keep = kind.looked_at.then(|| l.clone());
+                                (from, &**l, None, keep)
                             }),
                     };
                     // the parameters a look evaluates the dot at; with a canvas, where they are
@@ -2167,7 +2171,7 @@ fn coupling_map(
         .collect();
     type PerDot = Option<(
         ([f64; 7], Vec<(u32, [[f32; 8]; crate::joint::NB])>),
-        Option<Looked>,
+        Option<std::sync::Arc<Looked>>,
     )>;
     let per_dot: Vec<PerDot> = seeds
         .par_iter()
@@ -2196,7 +2200,7 @@ fn coupling_map(
             let Some(c) = crate::joint::coupling(kind, &dot, &nbs, noise, &keep) else {
                 return Some((alone, None));
             };
-            let looked = Looked::new(&c.fisher, kind.n_free(), win);
+            let looked = Looked::new(&c.fisher, kind.n_free(), win).map(std::sync::Arc::new);
             if nbs.is_empty() {
                 return Some((alone, looked));
             }
@@ -2212,7 +2216,10 @@ fn coupling_map(
             ))
         })
         .collect();
-    let (links, looked): (Vec<crate::coupling::DotLinks>, Vec<Option<Looked>>) = per_dot
+    let (links, looked): (
+        Vec<crate::coupling::DotLinks>,
+        Vec<Option<std::sync::Arc<Looked>>>,
+    ) = per_dot
         .into_iter()
         .map(|d| match d {
             Some((l, k)) => (Some(l), k),
