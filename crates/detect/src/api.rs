@@ -329,6 +329,40 @@ fn flag_roi_edge(
     });
 }
 
+/// [`flag_roi_edge`] for the seeds of a tracked image, `known` the reference's in the same
+/// order: a seed takes the reference's flag where the reference seed at its grid index was
+/// found (its flag was computed from the same map and mask), and is computed otherwise.
+fn flag_roi_edge_known(
+    seeds: &mut [Seed],
+    known: &[Seed],
+    mask: Option<&Mask>,
+    size: (usize, usize),
+    predict: impl Fn(f64, f64) -> [f64; 2] + Sync,
+) {
+    if mask.is_none() {
+        return;
+    }
+    let mut unknown: Vec<usize> = Vec::new();
+    for (k, s) in seeds.iter_mut().enumerate() {
+        if s.flags.contains(DotFlags::MISSING) {
+            continue;
+        }
+        match known.get(k) {
+            Some(r) if r.index == s.index && !r.flags.contains(DotFlags::MISSING) => {
+                if r.flags.contains(DotFlags::ROI_EDGE) {
+                    s.flags.insert(DotFlags::ROI_EDGE);
+                }
+            }
+            _ => unknown.push(k),
+        }
+    }
+    let mut rest: Vec<Seed> = unknown.iter().map(|&k| seeds[k]).collect();
+    flag_roi_edge(&mut rest, mask, size, predict);
+    for (&k, s) in unknown.iter().zip(rest) {
+        seeds[k] = s;
+    }
+}
+
 /// Whether a kept pixel of the image lies in the 3x3 block around the pixel nearest to `p`.
 fn near_kept(mask: Option<&Mask>, w: usize, h: usize, p: [f64; 2]) -> bool {
     let (x, y) = (p[0].round(), p[1].round());
@@ -1105,7 +1139,11 @@ pub fn track(
     let classified = classify(&ctx, &sites, Some(&nbhd));
     let (mut seeds, contrast): (Vec<Seed>, Vec<f64>) =
         classified.into_iter().map(|c| (c.seed, c.contrast)).unzip();
-    flag_roi_edge(&mut seeds, mask, (w, h), |i, j| reference.map.predict(i, j));
+    // (a site's flag depends on its grid index alone, through the reference's map and the
+    // mask: the reference's flag where the reference found its dot)
+    flag_roi_edge_known(&mut seeds, &reference.seeds, mask, (w, h), |i, j| {
+        reference.map.predict(i, j)
+    });
     let stats = stats_of(
         &seeds,
         noise,
