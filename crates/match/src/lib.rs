@@ -75,5 +75,5 @@ pub use error::MatchError;
 pub use nearest::{NearestConfig, PointMatches, match_points};
 pub use validate::{
     MedianTest, NeighbourLists, Validation, ValidationConfig, VectorCheck, Verdict, validate,
-    validate_with,
+    validate_at,
 };

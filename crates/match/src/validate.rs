@@ -122,7 +122,7 @@ const SPARE: usize = 4;
 
 /// Every position's nearest other positions, found once for validating many sets of vectors
 /// at the same positions (the reference positions of a campaign's frames) with
-/// [`validate_with`]: each frame's median test then takes its neighbours from the lists
+/// [`validate_at`]: each frame's median test then takes its neighbours from the lists
 /// instead of a spatial index, with the same result (where a list cannot decide, its dot is
 /// searched as without them).
 #[derive(Clone, Debug)]
@@ -174,25 +174,26 @@ impl NeighbourLists {
         }
     }
 
-    /// Whether the lists were made for `positions` (the same values, to the bit).
-    fn made_for(&self, positions: &[[f64; 2]]) -> bool {
-        self.positions.len() == positions.len()
-            && self
-                .positions
-                .iter()
-                .zip(positions)
-                .all(|(a, b)| a.map(f64::to_bits) == b.map(f64::to_bits))
-    }
-
-    /// Into `out`, the `k` nearest positions to position `i` among those `eligible`, itself
-    /// left out, by (distance, id), if its list decides them: every position closer than the
-    /// last one taken is in the list. (A list is the first of all positions by (distance, id),
-    /// so the first `k` eligible in it are always those; the check is kept as a guard.)
-    fn nearest(&self, i: usize, k: usize, eligible: &[bool], out: &mut Vec<(f64, u32)>) -> bool {
+    /// Into `out`, the `k` nearest positions to list position `i` among those of a
+    /// validation's (`slot`: the validation's index of each list position, `u32::MAX` where it
+    /// has none) that are `eligible` (by the validation's index), itself left out, by distance
+    /// and index, if its list decides them: every position closer than the last one taken is in
+    /// the list. (A list is the first of all positions by (distance, index), so the first `k`
+    /// eligible in it are always those where the validation's indices keep the lists' order;
+    /// the check is kept as a guard.)
+    fn nearest(
+        &self,
+        i: usize,
+        k: usize,
+        slot: &[u32],
+        eligible: &[bool],
+        out: &mut Vec<(f64, u32)>,
+    ) -> bool {
         out.clear();
         let list = &self.ids[self.start[i]..self.start[i + 1]];
         for &(d, q) in list {
-            if eligible[q as usize] {
+            let q = slot[q as usize];
+            if q != u32::MAX && eligible[q as usize] {
                 out.push((d, q));
                 if out.len() == k {
                     return d < self.complete_below[i];
@@ -202,6 +203,14 @@ impl NeighbourLists {
         // fewer than k: decided only where the list holds every other position
         self.complete_below[i] == f64::INFINITY
     }
+}
+
+/// A validation's vectors at positions of [`NeighbourLists`]: each vector's list position,
+/// and the vector at each list position.
+struct AtLists<'a> {
+    lists: &'a NeighbourLists,
+    at: &'a [usize],
+    slot: Vec<u32>,
 }
 
 /// Validate displacement vectors `displacements[i]` located at `positions[i]` (px; use the
@@ -214,13 +223,40 @@ pub fn validate(
     displacements: &[[f64; 2]],
     cfg: &ValidationConfig,
 ) -> Result<Validation, MatchError> {
-    validate_with(None, positions, displacements, cfg)
+    validate_inner(None, positions, displacements, cfg)
 }
 
-/// [`validate`], with the median test's neighbours from `lists` where they were made for these
-/// `positions` (the same values; otherwise they are not used). The result is the same.
-pub fn validate_with(
-    lists: Option<&NeighbourLists>,
+/// [`validate`] for vectors at positions of `lists`: `displacements[k]` at list position
+/// `at[k]` (each vector's reference dot, e.g. a frame's matched pairs in reference order). The
+/// median test takes its neighbours from the lists (where `at` increases, as the lists' ties
+/// go to the lower index), with the same result as [`validate`] at those positions. Errors
+/// also for an `at` beyond the lists.
+pub fn validate_at(
+    lists: &NeighbourLists,
+    at: &[usize],
+    displacements: &[[f64; 2]],
+    cfg: &ValidationConfig,
+) -> Result<Validation, MatchError> {
+    let n = lists.positions.len();
+    if let Some(&bad) = at.iter().find(|&&i| i >= n) {
+        return Err(MatchError::Config(format!(
+            "a vector at list position {bad} of {n}"
+        )));
+    }
+    let positions: Vec<[f64; 2]> = at.iter().map(|&i| lists.positions[i]).collect();
+    let increasing = at.windows(2).all(|w| w[0] < w[1]) && at.len() < u32::MAX as usize;
+    let mapped = increasing.then(|| {
+        let mut slot = vec![u32::MAX; n];
+        for (k, &i) in at.iter().enumerate() {
+            slot[i] = k as u32;
+        }
+        AtLists { lists, at, slot }
+    });
+    validate_inner(mapped, &positions, displacements, cfg)
+}
+
+fn validate_inner(
+    lists: Option<AtLists>,
     positions: &[[f64; 2]],
     displacements: &[[f64; 2]],
     cfg: &ValidationConfig,
@@ -290,7 +326,6 @@ pub fn validate_with(
         let eligible: Vec<bool> = (0..n)
             .map(|i| finite(i) && checks[i].verdict != Verdict::TooLarge)
             .collect();
-        let lists = lists.filter(|l| l.made_for(positions));
         // (the spatial index of the eligible positions: without lists, or for a dot its list
         // cannot decide)
         let tree = std::sync::OnceLock::new();
@@ -308,7 +343,10 @@ pub fn validate_with(
                 if !finite(i) {
                     return;
                 }
-                if !lists.is_some_and(|l| l.nearest(i, k, &eligible, nb)) {
+                if !lists
+                    .as_ref()
+                    .is_some_and(|l| l.lists.nearest(l.at[i], k, &l.slot, &eligible, nb))
+                {
                     set().nearest_n(&positions[i], k, Some(i), nb);
                 }
                 if nb.len() < 3 {

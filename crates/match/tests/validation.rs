@@ -234,11 +234,12 @@ fn threshold_replacement_and_untested_vectors() {
 /// The median test with neighbour lists made once for the positions gives what it gives
 /// without them, vector for vector: on an exact lattice (every distance tied four ways), a
 /// jittered one and random points, with vectors that are not finite, above the threshold or
-/// outliers, which the lists' neighbourhoods must skip as the spatial index does; positions
-/// other than the lists' are searched as before.
+/// outliers, which the lists' neighbourhoods must skip as the spatial index does; at every
+/// position, at a subset of them (a frame whose pairs miss some reference dots), and in an
+/// order the lists cannot serve (searched as without them).
 #[test]
 fn neighbour_lists_give_the_same_validation() {
-    use bostrack_match::{NeighbourLists, Validation, validate_with};
+    use bostrack_match::{NeighbourLists, Validation, validate_at};
     // equal checks, and replaced vectors equal to the bit (the vectors that are not finite
     // stay NaN in both)
     let same = |a: &Validation, b: &Validation| {
@@ -268,52 +269,55 @@ fn neighbour_lists_give_the_same_validation() {
         .collect();
     let exact = lattice(0.0, &mut rng);
     let jittered = lattice(1.0, &mut rng);
-    let mut used_lists = 0;
-    for (name, pos) in [("exact", exact), ("jittered", jittered), ("random", random)] {
+    let mut compared = 0;
+    for (name, all) in [("exact", exact), ("jittered", jittered), ("random", random)] {
         for k in [3, 8, 12] {
-            let lists = NeighbourLists::new(&pos, k);
+            let lists = NeighbourLists::new(&all, k);
             for round in 0..3 {
-                let disp: Vec<[f64; 2]> = pos
-                    .iter()
-                    .map(|p| {
-                        let d = field(Field::Vortex, *p);
-                        let u: f64 = rng.random_range(0.0..1.0);
-                        if u < 0.05 {
-                            [f64::NAN, f64::NAN]
-                        } else if u < 0.15 {
-                            [d[0] + 5.0, d[1] - 4.0] // an outlier, above the threshold too
-                        } else {
-                            [
-                                d[0] + normal.sample(&mut rng),
-                                d[1] + normal.sample(&mut rng),
-                            ]
-                        }
-                    })
+                // every position; about 85 % of them, in order; all of them backwards
+                let some: Vec<usize> = (0..all.len())
+                    .filter(|_| rng.random_range(0.0..1.0) < 0.85)
                     .collect();
-                let cfg = ValidationConfig {
-                    max_displacement: (round > 0).then_some(5.0),
-                    median_test: Some(MedianTest {
-                        neighbours: k,
-                        ..MedianTest::default()
-                    }),
-                    replace: round == 2,
-                };
-                let plain = validate(&pos, &disp, &cfg).expect("valid input");
-                let listed = validate_with(Some(&lists), &pos, &disp, &cfg).expect("valid input");
-                assert!(same(&plain, &listed), "{name}, k {k}, round {round}");
-                assert!(plain.outliers() > 0, "{name}");
-                used_lists += 1;
-                // positions that are not the lists': the lists are not used
-                let moved: Vec<[f64; 2]> = pos.iter().map(|p| [p[0] + 0.5, p[1]]).collect();
-                assert!(
-                    same(
-                        &validate(&moved, &disp, &cfg).expect("valid input"),
-                        &validate_with(Some(&lists), &moved, &disp, &cfg).expect("valid input"),
-                    ),
-                    "{name}, k {k}, moved"
-                );
+                let backwards: Vec<usize> = (0..all.len()).rev().collect();
+                for at in [(0..all.len()).collect::<Vec<usize>>(), some, backwards] {
+                    let pos: Vec<[f64; 2]> = at.iter().map(|&i| all[i]).collect();
+                    let disp: Vec<[f64; 2]> = pos
+                        .iter()
+                        .map(|p| {
+                            let d = field(Field::Vortex, *p);
+                            let u: f64 = rng.random_range(0.0..1.0);
+                            if u < 0.05 {
+                                [f64::NAN, f64::NAN]
+                            } else if u < 0.15 {
+                                [d[0] + 5.0, d[1] - 4.0] // an outlier, above the threshold too
+                            } else {
+                                [
+                                    d[0] + normal.sample(&mut rng),
+                                    d[1] + normal.sample(&mut rng),
+                                ]
+                            }
+                        })
+                        .collect();
+                    let cfg = ValidationConfig {
+                        max_displacement: (round > 0).then_some(5.0),
+                        median_test: Some(MedianTest {
+                            neighbours: k,
+                            ..MedianTest::default()
+                        }),
+                        replace: round == 2,
+                    };
+                    let plain = validate(&pos, &disp, &cfg).expect("valid input");
+                    let listed = validate_at(&lists, &at, &disp, &cfg).expect("valid input");
+                    assert!(same(&plain, &listed), "{name}, k {k}, round {round}");
+                    assert!(plain.outliers() > 0, "{name}");
+                    compared += 1;
+                }
             }
         }
     }
-    assert_eq!(used_lists, 27);
+    assert_eq!(compared, 81);
+    // a vector at a position the lists do not have
+    let lists = NeighbourLists::new(&[[0.0, 0.0], [1.0, 0.0]], 8);
+    let cfg = ValidationConfig::default();
+    assert!(validate_at(&lists, &[0, 2], &[[0.0, 0.0]; 2], &cfg).is_err());
 }

@@ -10,7 +10,7 @@ use bostrack_core::{DotFit, DotFlags, Image};
 use bostrack_displacement::{DisplacementConfig, PairDot, PairInput, pair_dots};
 use bostrack_match::{
     MatchConfig, MatchMode, MatchedBy, Matches, MedianTest, NearestConfig, ValidationConfig,
-    match_dots, validate_with,
+    match_dots, validate_at,
 };
 use std::path::Path;
 
@@ -291,13 +291,10 @@ pub fn process_image(
         });
     }
 
-    // validation: optional threshold, then the normalised median test
+    // validation: optional threshold, then the normalised median test, at the reference
+    // positions (the neighbour lists the reference context made of them)
     let position = |d: &DotFit| [d.params.x0, d.params.y0];
-    let pos: Vec<[f64; 2]> = m
-        .pairs
-        .iter()
-        .map(|p| position(&ctx.fits[p.reference]))
-        .collect();
+    let at: Vec<usize> = m.pairs.iter().map(|p| p.reference).collect();
     let disp: Vec<[f64; 2]> = m
         .pairs
         .iter()
@@ -322,12 +319,11 @@ pub fn process_image(
         }),
         replace: false,
     };
-    let v = validate_with(Some(&ctx.neighbour_lists), &pos, &disp, &vcfg).map_err(|e| {
-        PipelineError::Match {
+    let v =
+        validate_at(&ctx.neighbour_lists, &at, &disp, &vcfg).map_err(|e| PipelineError::Match {
             path: path.clone(),
             message: e.to_string(),
-        }
-    })?;
+        })?;
     let mut partner: Vec<Option<usize>> = vec![None; n];
     let mut flags = vec![DotFlags::NONE; n];
     for (p, c) in m.pairs.iter().zip(&v.checks) {
