@@ -71,7 +71,7 @@ pub(crate) struct Coupling {
     m: Vec<[[f32; 8]; NB]>,
     /// Per dot, its Fisher matrix at `fits` over its window (with its fit's weights), for the
     /// Gauss-Newton step that stands for an image's first pass (`None`: that dot is fitted).
-    pub(crate) looked: Vec<Option<std::sync::Arc<crate::dots::Looked>>>,
+    pub(crate) looked: Vec<Option<crate::dots::Looked>>,
 }
 
 /// What [`Coupling::solve`] found.
@@ -117,7 +117,7 @@ impl Coupling {
         base: &[DotFit],
         red: Vec<bool>,
         links: Vec<DotLinks>,
-        looked: Vec<Option<std::sync::Arc<crate::dots::Looked>>>,
+        looked: Vec<Option<crate::dots::Looked>>,
     ) -> Coupling {
         let blurred = sampling.image_model() != Sampling::Point;
         let dp = dot_params(kind);

@@ -234,13 +234,13 @@ pub fn refit_dots_report(
 /// Fisher matrix of its last least-squares fit (point-model fits; see [`fit_dots_remembered`]).
 #[derive(Clone, Debug, Default)]
 pub struct FitMemory {
-    looked: Vec<Option<std::sync::Arc<Looked>>>,
+    looked: Vec<Option<Looked>>,
 }
 
 impl FitMemory {
     fn of(items: &[Item]) -> FitMemory {
         FitMemory {
-            looked: items.iter().map(|i| i.looked.clone()).collect(),
+            looked: items.iter().map(|i| i.looked.as_deref().cloned()).collect(),
         }
     }
 
@@ -263,10 +263,7 @@ impl FitMemory {
             looked: self
                 .looked
                 .iter()
-                .map(|l| {
-                    l.as_ref()
-                        .map(|l| std::sync::Arc::new(l.scaled(1.0 / ratio)))
-                })
+                .map(|l| l.as_ref().map(|l| l.scaled(1.0 / ratio)))
                 .collect(),
         }
     }
@@ -870,7 +867,7 @@ struct Iteration<'a> {
     /// For a first pass from prior fits: per dot, the Fisher matrix to take one Gauss-Newton
     /// step from its prior with instead of fitting it (the stack's coupling map, or the
     /// reference's own fits for a gradient frame: [`FitMemory`]).
-    first_steps: Option<&'a [Option<std::sync::Arc<Looked>>]>,
+    first_steps: Option<&'a [Option<Looked>]>,
 }
 
 impl<'a> Iteration<'a> {
@@ -1347,9 +1344,8 @@ impl<'a> Iteration<'a> {
                                 let mut from = *own;
                                 from.index = s.index;
                                 from.flags = flags | s.flags;
-                                // (the memory's matrix itself, shared)
-                                let keep = kind.looked_at.then(|| l.clone());
-                                (from, &**l, None, keep)
+                                let keep = kind.looked_at.then(|| std::sync::Arc::new(l.clone()));
+                                (from, l, None, keep)
                             }),
                     };
                     // the parameters a look evaluates the dot at; with a canvas, where they are
@@ -2171,7 +2167,7 @@ fn coupling_map(
         .collect();
     type PerDot = Option<(
         ([f64; 7], Vec<(u32, [[f32; 8]; crate::joint::NB])>),
-        Option<std::sync::Arc<Looked>>,
+        Option<Looked>,
     )>;
     let per_dot: Vec<PerDot> = seeds
         .par_iter()
@@ -2200,7 +2196,7 @@ fn coupling_map(
             let Some(c) = crate::joint::coupling(kind, &dot, &nbs, noise, &keep) else {
                 return Some((alone, None));
             };
-            let looked = Looked::new(&c.fisher, kind.n_free(), win).map(std::sync::Arc::new);
+            let looked = Looked::new(&c.fisher, kind.n_free(), win);
             if nbs.is_empty() {
                 return Some((alone, looked));
             }
@@ -2216,10 +2212,7 @@ fn coupling_map(
             ))
         })
         .collect();
-    let (links, looked): (
-        Vec<crate::coupling::DotLinks>,
-        Vec<Option<std::sync::Arc<Looked>>>,
-    ) = per_dot
+    let (links, looked): (Vec<crate::coupling::DotLinks>, Vec<Option<Looked>>) = per_dot
         .into_iter()
         .map(|d| match d {
             Some((l, k)) => (Some(l), k),
