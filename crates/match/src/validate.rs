@@ -141,30 +141,46 @@ impl NeighbourLists {
     pub fn new(positions: &[[f64; 2]], neighbours: usize) -> NeighbourLists {
         let keep = neighbours.saturating_add(SPARE);
         let set = PointSet::new(positions, |_| true);
-        let per: Vec<(Vec<(f64, u32)>, f64)> = positions
-            .par_iter()
-            .enumerate()
-            .with_min_len(256)
-            .map_init(Vec::new, |nb, (i, p)| {
-                set.nearest_n(p, keep, Some(i), nb);
-                nb.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-                // fewer than asked: every finite other position is in the list
-                let below = if nb.len() < keep {
-                    f64::INFINITY
-                } else {
-                    nb.last().map_or(f64::INFINITY, |l| l.0)
-                };
-                (nb.clone(), below)
+        // in blocks of positions, each block's lists in one buffer (a buffer per position
+        // would leave as many small holes in the heap)
+        const BLOCK: usize = 512;
+        // per block: its lists one after the other, their lengths, their `complete_below`
+        type Block = (Vec<(f64, u32)>, Vec<usize>, Vec<f64>);
+        let blocks: Vec<Block> = (0..positions.len())
+            .step_by(BLOCK)
+            .collect::<Vec<usize>>()
+            .into_par_iter()
+            .map(|lo| {
+                let hi = (lo + BLOCK).min(positions.len());
+                let mut ids = Vec::with_capacity((hi - lo) * keep);
+                let mut lens = Vec::with_capacity(hi - lo);
+                let mut below = Vec::with_capacity(hi - lo);
+                let mut nb = Vec::with_capacity(keep + 4);
+                for (i, p) in positions.iter().enumerate().take(hi).skip(lo) {
+                    set.nearest_n(p, keep, Some(i), &mut nb);
+                    nb.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+                    // fewer than asked: every finite other position is in the list
+                    below.push(if nb.len() < keep {
+                        f64::INFINITY
+                    } else {
+                        nb.last().map_or(f64::INFINITY, |l| l.0)
+                    });
+                    lens.push(nb.len());
+                    ids.extend_from_slice(&nb);
+                }
+                (ids, lens, below)
             })
             .collect();
-        let mut start = Vec::with_capacity(per.len() + 1);
-        let mut ids = Vec::with_capacity(per.iter().map(|p| p.0.len()).sum());
-        let mut complete_below = Vec::with_capacity(per.len());
+        let mut start = Vec::with_capacity(positions.len() + 1);
+        let mut ids = Vec::with_capacity(blocks.iter().map(|b| b.0.len()).sum());
+        let mut complete_below = Vec::with_capacity(positions.len());
         start.push(0);
-        for (l, b) in per {
-            ids.extend(l);
-            start.push(ids.len());
-            complete_below.push(b);
+        for (b_ids, lens, below) in blocks {
+            for len in lens {
+                start.push(start[start.len() - 1] + len);
+            }
+            ids.extend(b_ids);
+            complete_below.extend(below);
         }
         NeighbourLists {
             positions: positions.to_vec(),
