@@ -656,13 +656,15 @@ fn add_inside(ws: &mut crate::eval::Workspace, b: PixelBox, amp: f64) {
 }
 
 /// How far (in standard deviations of its position: the Mahalanobis length of the position
-/// part) the dot `fit` would move if refitted to the window's data as loaded in `ws` (its
+/// part) the dot at `tb` (its fit's parameters from [`look_theta`], which also says where no
+/// look is possible) would move if refitted to the window's data as loaded in `ws` (its
 /// neighbours' current models subtracted): one Gauss-Newton step `F⁻¹ Σ w ∇μ r` from it, with
-/// the Fisher matrix of `looked` (its fit's, or the map's at the reference's fit). At the last fit's data the step is below the fit's
-/// tolerance (`[fit] tolerance`, 0.05 standard deviations, or of second order after its last
-/// step), so what it measures is how far the neighbours' changes since then pull the dot.
-/// `None` where that cannot be predicted (a fit at a bound, held in shape or not converged, not
-/// in the point model's range, another window).
+/// the Fisher matrix of `looked` (its fit's, or the map's at the reference's fit). At the last
+/// fit's data the step is below the fit's tolerance (`[fit] tolerance`, 0.05 standard
+/// deviations, or of second order after its last step), so what it measures is how far the
+/// neighbours' changes since then pull the dot. `own_back`: the dot's pixel box on a canvas
+/// whose subtraction left the dot's own model out of the window; added back from this
+/// rendering. `None` where the step is not finite.
 fn look(
     ws: &mut crate::eval::Workspace,
     tb: crate::eval::Theta,
@@ -1925,7 +1927,8 @@ impl Canvas {
 
     /// Subtracts from the loaded window of seed `i` every neighbour model as
     /// [`for_each_neighbour`] does (the canvas, minus the dot's own model and any seed closer
-    /// than 1.5 px); returns how many neighbours touch the window.
+    /// than 1.5 px); returns how many neighbours touch the window. `own: false` leaves the dot's
+    /// own model subtracted, for a caller that adds it back itself ([`look`]'s `own_back`).
     fn subtract_neighbours(
         &self,
         ws: &mut crate::eval::Workspace,
