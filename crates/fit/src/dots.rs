@@ -1670,15 +1670,19 @@ impl Links {
         let rows = seeds
             .par_iter()
             .enumerate()
-            .map_init(Vec::new, |near, (i, s)| {
-                let mut row = Vec::new();
-                hood.touching(i, s.window, near, |j, m, same| {
-                    if !same && !hood.is_ghost(j) {
-                        row.push((j as u32, m.share_in(s.window)));
-                    }
-                });
-                row
-            })
+            .map_init(
+                || (Vec::new(), Vec::new()),
+                |(near, row), (i, s)| {
+                    // (gathered in a reused buffer, then one allocation of the row's size)
+                    row.clear();
+                    hood.touching(i, s.window, near, |j, m, same| {
+                        if !same && !hood.is_ghost(j) {
+                            row.push((j as u32, m.share_in(s.window)));
+                        }
+                    });
+                    row.to_vec()
+                },
+            )
             .collect();
         let linked = hood.models[..seeds.len()]
             .iter()
