@@ -94,15 +94,17 @@ pub fn fit_dots_report(
     cfg: &FitConfig,
     noise: &NoiseModel,
 ) -> Result<(Vec<DotFit>, PassReport), FitError> {
-    fit_dots_inner(img, mask, seeds, cfg, noise).map(|(f, r, _)| (f, r))
+    fit_dots_inner(img, mask, seeds, cfg, noise, false).map(|(f, r, _)| (f, r))
 }
 
+/// `remember`: return the fits' [`FitMemory`] (an empty one without).
 fn fit_dots_inner(
     img: &Image,
     mask: Option<&Mask>,
     seeds: &[Seed],
     cfg: &FitConfig,
     noise: &NoiseModel,
+    remember: bool,
 ) -> Result<(Vec<DotFit>, PassReport, FitMemory), FitError> {
     cfg.validate()?;
     check_mask(img, mask)?;
@@ -117,7 +119,7 @@ fn fit_dots_inner(
                 },
             )
             .collect();
-        let memory = FitMemory::of(&items);
+        let memory = FitMemory::of(&items, remember);
         return Ok((finish(items, cfg), PassReport::none(), memory));
     }
     // first neighbour models: the moment estimates (IWC record), which stop at the saddle
@@ -137,6 +139,7 @@ fn fit_dots_inner(
         .collect();
     let mut canvas_buf = Vec::new();
     let mut it = Iteration::new(img, mask, seeds, cfg, noise);
+    it.remember = remember;
     // one set of neighbour models through all passes, each dot's replaced where its new fit
     // passes the gate (see `Plausible`)
     let mut hood = Neighbourhood::new(&prev, seeds, cfg.sampling);
@@ -162,7 +165,7 @@ fn fit_dots_inner(
             linear_sweeps: 0,
             linear_steps: 0,
         };
-        let memory = FitMemory::of(&first);
+        let memory = FitMemory::of(&first, remember);
         return Ok((finish(first, cfg), report, memory));
     }
     // pass 2: every dot again, to the full tolerance (with the weights check)
@@ -238,7 +241,11 @@ pub struct FitMemory {
 }
 
 impl FitMemory {
-    fn of(items: &[Item]) -> FitMemory {
+    /// The memory of `items` (an empty one unless `remember`: a copy of ~0.5 kB per dot).
+    fn of(items: &[Item], remember: bool) -> FitMemory {
+        if !remember {
+            return FitMemory::default();
+        }
         FitMemory {
             looked: items.iter().map(|i| i.looked.as_deref().cloned()).collect(),
         }
@@ -279,7 +286,7 @@ pub fn fit_dots_remembered(
     cfg: &FitConfig,
     noise: &NoiseModel,
 ) -> Result<(Vec<DotFit>, PassReport, FitMemory), FitError> {
-    fit_dots_inner(img, mask, seeds, cfg, noise)
+    fit_dots_inner(img, mask, seeds, cfg, noise, true)
 }
 
 /// [`refit_dots_report`] with the [`FitMemory`] of the fits `prior` was made from (in the same
@@ -870,6 +877,8 @@ struct Iteration<'a> {
     /// step from its prior with instead of fitting it (the stack's coupling map, or the
     /// reference's own fits for a gradient frame: [`FitMemory`]).
     first_steps: Option<&'a [Option<Looked>]>,
+    /// Whether [`Iteration::converge`] returns the fits' [`FitMemory`] (an empty one without).
+    remember: bool,
 }
 
 impl<'a> Iteration<'a> {
@@ -896,6 +905,7 @@ impl<'a> Iteration<'a> {
             half: half as i64,
             fixed_shape: None,
             first_steps: None,
+            remember: false,
         }
     }
 
@@ -1105,7 +1115,7 @@ impl<'a> Iteration<'a> {
                     linear_sweeps: 0,
                     linear_steps,
                 };
-                let memory = FitMemory::of(&items);
+                let memory = FitMemory::of(&items, self.remember);
                 return (self.finish(items, &hood, &links), report, memory);
             }
             let windowed = (count as f64) < CANVAS_FRACTION * self.seeds.len() as f64;
