@@ -238,6 +238,8 @@ pub fn refit_dots_report(
 #[derive(Clone, Debug, Default)]
 pub struct FitMemory {
     looked: Vec<Option<Looked>>,
+    /// The iteration's [`Links`] as it ended (`None` for fits without a neighbour iteration).
+    links: Option<LinkMemory>,
 }
 
 impl FitMemory {
@@ -248,6 +250,7 @@ impl FitMemory {
         }
         FitMemory {
             looked: items.iter().map(|i| i.looked.as_deref().cloned()).collect(),
+            links: None,
         }
     }
 
@@ -272,6 +275,8 @@ impl FitMemory {
                 .iter()
                 .map(|l| l.as_ref().map(|l| l.scaled(1.0 / ratio)))
                 .collect(),
+            // (the shares are the models' geometry, not their noise)
+            links: self.links.clone(),
         }
     }
 }
@@ -345,6 +350,9 @@ pub fn refit_dots_remembered(
             (None, Some(m)) => Some(m.looked.as_slice()),
             (None, None) => None,
         };
+        it.links_from = memory
+            .filter(|_| coupling.is_none())
+            .and_then(|m| m.links.as_ref());
         let mut hood = Neighbourhood::new(coupling.map_or(prior, |c| &c.fits), seeds, cfg.sampling);
         hood.set_ghosts(it.ghosts(prior, &hood));
         let first = it.pass(
@@ -879,6 +887,9 @@ struct Iteration<'a> {
     first_steps: Option<&'a [Option<Looked>]>,
     /// Whether [`Iteration::converge`] returns the fits' [`FitMemory`] (an empty one without).
     remember: bool,
+    /// For an image of the same seeds as a remembered fit: that fit's [`Links`], which
+    /// [`Iteration::converge`] starts from ([`Links::carried`]) instead of linking every dot.
+    links_from: Option<&'a LinkMemory>,
 }
 
 impl<'a> Iteration<'a> {
@@ -906,6 +917,7 @@ impl<'a> Iteration<'a> {
             fixed_shape: None,
             first_steps: None,
             remember: false,
+            links_from: None,
         }
     }
 
@@ -1049,8 +1061,11 @@ impl<'a> Iteration<'a> {
         let mut linear_steps = 0;
         // the fits (`hood`: their neighbour models, updated for the dots each pass refits)
         let mut fits: Vec<DotFit> = items.iter().map(|i| i.fit).collect();
-        let mut links = Links::new(self.seeds, &hood);
         let mut near = Vec::new();
+        let mut links = match self.links_from {
+            Some(m) if m.fits(self.seeds) => Links::carried(m, self.seeds, &hood, &mut near),
+            _ => Links::new(self.seeds, &hood),
+        };
         loop {
             let passes = refits.len() as u32;
             // the pull owed since each dot was last fitted or checked (small pulls add up)
@@ -1115,7 +1130,10 @@ impl<'a> Iteration<'a> {
                     linear_sweeps: 0,
                     linear_steps,
                 };
-                let memory = FitMemory::of(&items, self.remember);
+                let mut memory = FitMemory::of(&items, self.remember);
+                if self.remember {
+                    memory.links = Some(links.memory(self.seeds));
+                }
                 return (self.finish(items, &hood, &links), report, memory);
             }
             let windowed = (count as f64) < CANVAS_FRACTION * self.seeds.len() as f64;
@@ -1665,7 +1683,7 @@ const SCREEN: f64 = 0.25;
 /// it was linked is linked anew ([`Links::refresh`]); smaller moves change its shares by less
 /// than a screening needs.
 struct Links {
-    rows: Vec<Vec<(u32, f64)>>,
+    rows: LinkRows,
     /// Each dot's model as last linked: centre and reach (px).
     linked: Vec<Option<[f64; 4]>>,
     /// The seeds' windows, bucketed.
@@ -1677,28 +1695,51 @@ const RELINK: f64 = 0.05;
 
 impl Links {
     fn new(seeds: &[Seed], hood: &Neighbourhood) -> Links {
-        let rows = seeds
-            .par_iter()
+        // blocks of seeds in parallel, each its rows in one buffer
+        let blocks: Vec<RowBlock> = seeds
+            .par_chunks(LINK_BLOCK)
             .enumerate()
-            .map_init(
-                || (Vec::new(), Vec::new()),
-                |(near, row), (i, s)| {
-                    // (gathered in a reused buffer, then one allocation of the row's size)
-                    row.clear();
-                    hood.touching(i, s.window, near, |j, m, same| {
-                        if !same && !hood.is_ghost(j) {
-                            row.push((j as u32, m.share_in(s.window)));
-                        }
-                    });
-                    row.to_vec()
-                },
-            )
+            .map(|(b, block)| {
+                let mut near = Vec::new();
+                let (mut data, mut lens) = (Vec::new(), Vec::with_capacity(block.len()));
+                for (k, s) in block.iter().enumerate() {
+                    let from = data.len();
+                    Links::row_of(b * LINK_BLOCK + k, s, hood, &mut near, &mut data);
+                    lens.push((data.len() - from) as u32);
+                }
+                (data, lens)
+            })
             .collect();
+        let rows = LinkRows::from_blocks(&blocks, seeds.len());
         let linked = hood.models[..seeds.len()]
             .iter()
             .map(|m| m.as_ref().map(|m| [m.x0, m.y0, m.rx, m.ry]))
             .collect();
-        let windows = NeighbourIndex::of_points(seeds.iter().map(|s| {
+        Links {
+            rows,
+            linked,
+            windows: Links::index(seeds),
+        }
+    }
+
+    /// Seed `i`'s row linked from the current models, appended to `out`.
+    fn row_of(
+        i: usize,
+        s: &Seed,
+        hood: &Neighbourhood,
+        near: &mut Vec<usize>,
+        out: &mut Vec<(u32, f64)>,
+    ) {
+        hood.touching(i, s.window, near, |j, m, same| {
+            if !same && !hood.is_ghost(j) {
+                out.push((j as u32, m.share_in(s.window)));
+            }
+        });
+    }
+
+    /// The seeds' windows, bucketed.
+    fn index(seeds: &[Seed]) -> NeighbourIndex {
+        NeighbourIndex::of_points(seeds.iter().map(|s| {
             let w = s.window;
             let half = 0.5 * w.width.max(w.height) as f64;
             Some((
@@ -1706,16 +1747,61 @@ impl Links {
                 w.y as f64 + 0.5 * (w.height as f64 - 1.0),
                 half,
             ))
-        }));
-        Links {
+        }))
+    }
+
+    /// The links of another image's iteration over the same seeds (`m`), brought to the
+    /// current models as a pass brings its own ([`Links::refresh`]): the rows of the seeds whose
+    /// window is the one `m` was linked over are `m`'s, the others are linked anew; then every
+    /// model that moved by more than [`RELINK`] since `m` linked it (or appeared, or is gone)
+    /// is linked anew. On a gradient frame that is the flow region; elsewhere the reference's
+    /// shares stand (the same rule as between two passes of one image).
+    fn carried(
+        m: &LinkMemory,
+        seeds: &[Seed],
+        hood: &Neighbourhood,
+        near: &mut Vec<usize>,
+    ) -> Links {
+        let fresh: Vec<bool> = seeds
+            .iter()
+            .zip(&m.windows)
+            .map(|(s, w)| s.window != *w)
+            .collect();
+        // the rows of the moved windows, linked anew (in parallel), into the remembered rows
+        let anew: Vec<(usize, Vec<(u32, f64)>)> = seeds
+            .par_iter()
+            .enumerate()
+            .filter(|&(i, _)| fresh[i])
+            .map_init(Vec::new, |near, (i, s)| {
+                let mut row = Vec::new();
+                Links::row_of(i, s, hood, near, &mut row);
+                (i, row)
+            })
+            .collect();
+        let mut rows = m.rows.clone();
+        for (i, row) in anew {
+            rows.replace(i, &row);
+        }
+        let mut links = Links {
             rows,
-            linked,
-            windows,
+            linked: m.linked.clone(),
+            windows: Links::index(seeds),
+        };
+        links.relink(seeds, hood, 0..seeds.len(), near, Some(&fresh));
+        links
+    }
+
+    /// The links as a [`LinkMemory`] for another image of `seeds`.
+    fn memory(&self, seeds: &[Seed]) -> LinkMemory {
+        LinkMemory {
+            rows: self.rows.clone(),
+            linked: self.linked.clone(),
+            windows: seeds.iter().map(|s| s.window).collect(),
         }
     }
 
     fn row(&self, i: usize) -> &[(u32, f64)] {
-        &self.rows[i]
+        self.rows.row(i)
     }
 
     /// Links anew the dots of `changed` whose model moved too far (see [`Links`]): out of the
@@ -1727,6 +1813,19 @@ impl Links {
         changed: impl Iterator<Item = usize>,
         near: &mut Vec<usize>,
     ) {
+        self.relink(seeds, hood, changed, near, None);
+    }
+
+    /// [`Links::refresh`]; the rows marked in `current` (linked from the current models
+    /// already) are left as they are, and a dot whose model is gone is taken out of the rows.
+    fn relink(
+        &mut self,
+        seeds: &[Seed],
+        hood: &Neighbourhood,
+        changed: impl Iterator<Item = usize>,
+        near: &mut Vec<usize>,
+        current: Option<&[bool]>,
+    ) {
         // the windows a model of centre and reach `at` may touch
         let around = |at: [f64; 4]| {
             let (x0, y0) = ((at[0] - at[2]).floor(), (at[1] - at[3]).floor());
@@ -1737,31 +1836,155 @@ impl Links {
                 (at[1] + at[3] - y0).ceil() as usize + 1,
             )
         };
+        let skip = |i: usize| current.is_some_and(|c| c[i]);
         for j in changed {
-            let Some(m) = &hood.models[j] else { continue };
-            let now = [m.x0, m.y0, m.rx, m.ry];
+            let model = hood.models[j].as_ref();
+            let now = model.map(|m| [m.x0, m.y0, m.rx, m.ry]);
             let was = self.linked[j];
             if let Some(w) = was {
-                let sigma = REACH_SIGMAS.recip() * w[2].min(w[3]);
-                if (now[0] - w[0]).abs().max((now[1] - w[1]).abs()) <= RELINK * sigma
-                    && (now[2] / w[2] - 1.0).abs().max((now[3] / w[3] - 1.0).abs()) <= RELINK
-                {
-                    continue;
+                if let Some(now) = now {
+                    let sigma = REACH_SIGMAS.recip() * w[2].min(w[3]);
+                    if (now[0] - w[0]).abs().max((now[1] - w[1]).abs()) <= RELINK * sigma
+                        && (now[2] / w[2] - 1.0).abs().max((now[3] / w[3] - 1.0).abs()) <= RELINK
+                    {
+                        continue;
+                    }
                 }
                 self.windows.near_unsorted(around(w), near);
                 for &i in near.iter() {
-                    self.rows[i].retain(|&(k, _)| k as usize != j);
+                    if !skip(i) {
+                        self.rows.remove(i, j as u32);
+                    }
                 }
             }
+            self.linked[j] = now;
+            let (Some(m), Some(now)) = (model, now) else {
+                continue;
+            };
             self.windows.near_unsorted(around(now), near);
             for &i in near.iter() {
                 let s = &seeds[i];
                 // (the rows the old model reached no longer hold j; no other row did)
-                if i != j && m.reaches(s.window) && !same_seed(s, &seeds[j]) {
-                    self.rows[i].push((j as u32, m.share_in(s.window)));
+                if i != j && !skip(i) && m.reaches(s.window) && !same_seed(s, &seeds[j]) {
+                    self.rows.push(i, (j as u32, m.share_in(s.window)));
                 }
             }
-            self.linked[j] = Some(now);
+        }
+    }
+}
+
+/// A fit's [`Links`] as its iteration ended, for an image of the same seeds
+/// ([`Links::carried`]): the rows, the models they were linked at and the seed windows they
+/// were linked over.
+#[derive(Clone, Debug, Default)]
+struct LinkMemory {
+    rows: LinkRows,
+    linked: Vec<Option<[f64; 4]>>,
+    windows: Vec<Window>,
+}
+
+impl LinkMemory {
+    /// Whether these are links of `seeds`' dots (as many).
+    fn fits(&self, seeds: &[Seed]) -> bool {
+        self.windows.len() == seeds.len()
+            && self.linked.len() == seeds.len()
+            && self.rows.len() == seeds.len()
+    }
+}
+
+/// A block of rows: their entries one after the other, and each row's length.
+type RowBlock = (Vec<(u32, f64)>, Vec<u32>);
+
+/// Seeds per block of [`Links::new`] (each block's rows gathered in one buffer).
+const LINK_BLOCK: usize = 256;
+
+/// Free entries after each row of [`LinkRows`] when it is laid out: room for relinked
+/// neighbours without moving the row.
+const LINK_SPARE: usize = 2;
+
+/// The rows of [`Links`] in one buffer (one allocation, not one per dot: the heap of ~12,000
+/// small rows slowed the allocations that follow, and a copy is one `memcpy`): row `i` is
+/// `data[start[i]..start[i] + len[i]]` with room for `cap[i]` entries; a row that outgrows its
+/// room moves to the end of the buffer (its old room stays unused).
+#[derive(Clone, Debug, Default)]
+struct LinkRows {
+    start: Vec<u32>,
+    len: Vec<u32>,
+    cap: Vec<u32>,
+    data: Vec<(u32, f64)>,
+}
+
+impl LinkRows {
+    /// The rows of `blocks` (each its rows' entries one after the other and their lengths), in
+    /// order: `n` rows in all.
+    fn from_blocks(blocks: &[RowBlock], n: usize) -> LinkRows {
+        let total: usize = blocks.iter().map(|(d, _)| d.len()).sum::<usize>() + n * LINK_SPARE;
+        let mut rows = LinkRows {
+            start: Vec::with_capacity(n),
+            len: Vec::with_capacity(n),
+            cap: Vec::with_capacity(n),
+            data: Vec::with_capacity(total),
+        };
+        for (data, lens) in blocks {
+            let mut at = 0;
+            for &l in lens {
+                let l = l as usize;
+                rows.start.push(rows.data.len() as u32);
+                rows.len.push(l as u32);
+                rows.cap.push((l + LINK_SPARE) as u32);
+                rows.data.extend_from_slice(&data[at..at + l]);
+                rows.data
+                    .extend(std::iter::repeat_n((u32::MAX, 0.0), LINK_SPARE));
+                at += l;
+            }
+        }
+        rows
+    }
+
+    fn len(&self) -> usize {
+        self.start.len()
+    }
+
+    fn row(&self, i: usize) -> &[(u32, f64)] {
+        let s = self.start[i] as usize;
+        &self.data[s..s + self.len[i] as usize]
+    }
+
+    /// Appends `e` to row `i` (moving the row to the end of the buffer when it is full).
+    fn push(&mut self, i: usize, e: (u32, f64)) {
+        let (s, l) = (self.start[i] as usize, self.len[i] as usize);
+        if l == self.cap[i] as usize {
+            let cap = 2 * l + LINK_SPARE;
+            let at = self.data.len();
+            self.data.extend_from_within(s..s + l);
+            self.data.resize(at + cap, (u32::MAX, 0.0));
+            self.start[i] = at as u32;
+            self.cap[i] = cap as u32;
+        }
+        let s = self.start[i] as usize;
+        self.data[s + l] = e;
+        self.len[i] += 1;
+    }
+
+    /// Removes neighbour `j` from row `i` (the order of the others kept).
+    fn remove(&mut self, i: usize, j: u32) {
+        let (s, l) = (self.start[i] as usize, self.len[i] as usize);
+        let row = &mut self.data[s..s + l];
+        let mut kept = 0;
+        for k in 0..l {
+            if row[k].0 != j {
+                row[kept] = row[k];
+                kept += 1;
+            }
+        }
+        self.len[i] = kept as u32;
+    }
+
+    /// Row `i` made `entries`.
+    fn replace(&mut self, i: usize, entries: &[(u32, f64)]) {
+        self.len[i] = 0;
+        for &e in entries {
+            self.push(i, e);
         }
     }
 }
@@ -2681,5 +2904,137 @@ mod tests {
         assert!((r - 0.3).abs() < 0.05, "{r}");
         let r = super::held_rho(&mut draw(-0.08));
         assert!((r + 0.08).abs() < 0.05, "{r}");
+    }
+}
+
+#[cfg(test)]
+mod link_tests {
+    use super::{FitSampling, LinkRows, Links, Neighbourhood};
+    use bostrack_core::{DotFit, DotFlags, FitStatus, Gaussian2D, GridIndex, Seed, Window};
+
+    /// Every operation on the flat rows against a `Vec` per row (pseudo-random pushes past
+    /// the rows' room, removals, replacements).
+    #[test]
+    fn link_rows_behave_as_a_vec_per_row() {
+        let n = 40;
+        let mut model: Vec<Vec<(u32, f64)>> = (0..n)
+            .map(|i| (0..(i % 5) as u32).map(|k| (k, k as f64 + 0.5)).collect())
+            .collect();
+        let blocks: Vec<super::RowBlock> = model
+            .chunks(16)
+            .map(|c| {
+                let lens = c.iter().map(|r| r.len() as u32).collect();
+                (c.concat(), lens)
+            })
+            .collect();
+        let mut rows = LinkRows::from_blocks(&blocks, n);
+        let mut state = 12345u64;
+        let mut next = || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 33) as usize
+        };
+        for step in 0..4000 {
+            let i = next() % n;
+            match next() % 4 {
+                0 | 1 => {
+                    let e = ((next() % 12) as u32, step as f64);
+                    rows.push(i, e);
+                    model[i].push(e);
+                }
+                2 => {
+                    let j = (next() % 12) as u32;
+                    rows.remove(i, j);
+                    model[i].retain(|e| e.0 != j);
+                }
+                _ => {
+                    let r: Vec<(u32, f64)> = (0..next() % 9)
+                        .map(|k| (k as u32, -(step as f64)))
+                        .collect();
+                    rows.replace(i, &r);
+                    model[i] = r;
+                }
+            }
+            assert_eq!(rows.row(i), &model[i][..], "step {step}");
+        }
+        for (i, m) in model.iter().enumerate() {
+            assert_eq!(rows.row(i), &m[..]);
+        }
+    }
+
+    fn lattice(n: i32, shift: impl Fn(i32, i32) -> [f64; 2]) -> (Vec<Seed>, Vec<DotFit>) {
+        let mut seeds = Vec::new();
+        let mut fits = Vec::new();
+        for j in 0..n {
+            for i in 0..n {
+                let (x, y) = (10.0 + 7.0 * i as f64, 10.0 + 7.0 * j as f64);
+                let d = shift(i, j);
+                let index = GridIndex { i, j };
+                seeds.push(Seed {
+                    index,
+                    predicted: [x, y],
+                    centre: [x + d[0], y + d[1]],
+                    window: Window::new(x as i64 - 4, y as i64 - 4, 9, 9),
+                    flags: DotFlags::NONE,
+                });
+                fits.push(DotFit {
+                    index,
+                    params: Gaussian2D::circular(x + d[0], y + d[1], 100.0, 1.6, 10.0),
+                    crlb_x: 0.01,
+                    crlb_y: 0.01,
+                    rms: 1.0,
+                    iterations: 3,
+                    status: FitStatus::Converged,
+                    flags: DotFlags::NONE,
+                });
+            }
+        }
+        (seeds, fits)
+    }
+
+    fn sorted(r: &[(u32, f64)]) -> Vec<(u32, u64)> {
+        let mut v: Vec<(u32, u64)> = r.iter().map(|&(j, s)| (j, s.to_bits())).collect();
+        v.sort();
+        v
+    }
+
+    /// Links carried from another image's iteration equal the links made anew from the current
+    /// models where every model either stayed (its shares are the same) or moved by more than
+    /// the relink distance (its shares are recomputed), where a dot is gone and where seed
+    /// windows moved.
+    #[test]
+    fn carried_links_are_the_links_of_the_current_models() {
+        let (seeds0, fits0) = lattice(12, |_, _| [0.0, 0.0]);
+        let hood0 = Neighbourhood::new(&fits0, &seeds0, FitSampling::Auto);
+        let memory = Links::new(&seeds0, &hood0).memory(&seeds0);
+        assert!(memory.fits(&seeds0));
+        // a flow region (dots 0.4 px off), one dot gone, two windows moved by a pixel
+        let (mut seeds, mut fits) = lattice(12, |i, j| {
+            if (4..8).contains(&i) && (3..9).contains(&j) {
+                [0.4, -0.3]
+            } else {
+                [0.0, 0.0]
+            }
+        });
+        fits[30].status = FitStatus::NotFitted;
+        for k in [50, 51] {
+            let w = seeds[k].window;
+            seeds[k].window = Window::new(w.x + 1, w.y, w.width, w.height);
+        }
+        let hood = Neighbourhood::new(&fits, &seeds, FitSampling::Auto);
+        let mut near = Vec::new();
+        let carried = Links::carried(&memory, &seeds, &hood, &mut near);
+        let fresh = Links::new(&seeds, &hood);
+        let mut moved_rows = 0;
+        for i in 0..seeds.len() {
+            assert_eq!(sorted(carried.row(i)), sorted(fresh.row(i)), "row {i}");
+            if sorted(memory.rows.row(i)) != sorted(fresh.row(i)) {
+                moved_rows += 1;
+            }
+        }
+        // (the test sees rows that did change)
+        assert!(moved_rows > 40, "{moved_rows}");
+        assert!(!(0..seeds.len()).any(|i| carried.row(i).iter().any(|e| e.0 == 30)));
     }
 }
