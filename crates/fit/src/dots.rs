@@ -1153,7 +1153,7 @@ impl<'a> Iteration<'a> {
             );
             hood.apply(&next, &mut fits, self.cfg.sampling);
             let changed = next.iter().enumerate().filter(|(_, n)| n.is_some());
-            links.refresh(self.seeds, &hood, changed.map(|(j, _)| j), &mut near);
+            links.relink(self.seeds, &hood, changed.map(|(j, _)| j), &mut near, None);
             let mut refitted = 0;
             for (((((it, n), k), last), o), &sel) in items
                 .iter_mut()
@@ -1680,7 +1680,7 @@ const SCREEN: f64 = 0.25;
 /// joint bound's groups, computed once per iteration instead of once per pass (on the real
 /// gradient frame the shares cost 34 ms of a 200 ms one-thread fit). A dot whose model moved
 /// by more than [`RELINK`] of its σ (or changed its reach by that fraction, or appeared) since
-/// it was linked is linked anew ([`Links::refresh`]); smaller moves change its shares by less
+/// it was linked is linked anew ([`Links::relink`]); smaller moves change its shares by less
 /// than a screening needs.
 struct Links {
     rows: LinkRows,
@@ -1751,7 +1751,7 @@ impl Links {
     }
 
     /// The links of another image's iteration over the same seeds (`m`), brought to the
-    /// current models as a pass brings its own ([`Links::refresh`]): the rows of the seeds whose
+    /// current models as a pass brings its own ([`Links::relink`]): the rows of the seeds whose
     /// window is the one `m` was linked over are `m`'s, the others are linked anew; then every
     /// model that moved by more than [`RELINK`] since `m` linked it (or appeared, or is gone)
     /// is linked anew. On a gradient frame that is the flow region; elsewhere the reference's
@@ -1805,19 +1805,9 @@ impl Links {
     }
 
     /// Links anew the dots of `changed` whose model moved too far (see [`Links`]): out of the
-    /// rows of the windows its old model reached, into those its new one reaches.
-    fn refresh(
-        &mut self,
-        seeds: &[Seed],
-        hood: &Neighbourhood,
-        changed: impl Iterator<Item = usize>,
-        near: &mut Vec<usize>,
-    ) {
-        self.relink(seeds, hood, changed, near, None);
-    }
-
-    /// [`Links::refresh`]; the rows marked in `current` (linked from the current models
-    /// already) are left as they are, and a dot whose model is gone is taken out of the rows.
+    /// rows of the windows its old model reached, into those its new one reaches; a dot whose
+    /// model is gone is taken out of the rows. The rows marked in `current` (linked from the
+    /// current models already) are left as they are.
     fn relink(
         &mut self,
         seeds: &[Seed],
