@@ -119,7 +119,7 @@ fn fit_dots_inner(
                 },
             )
             .collect();
-        let memory = FitMemory::of(&items, remember);
+        let memory = FitMemory::of(&items, remember, None);
         return Ok((finish(items, cfg), PassReport::none(), memory));
     }
     // first neighbour models: the moment estimates (IWC record), which stop at the saddle
@@ -165,7 +165,7 @@ fn fit_dots_inner(
             linear_sweeps: 0,
             linear_steps: 0,
         };
-        let memory = FitMemory::of(&first, remember);
+        let memory = FitMemory::of(&first, remember, None);
         return Ok((finish(first, cfg), report, memory));
     }
     // pass 2: every dot again, to the full tolerance (with the weights check)
@@ -243,13 +243,17 @@ pub struct FitMemory {
 }
 
 impl FitMemory {
-    /// The memory of `items` (an empty one unless `remember`: a copy of ~0.5 kB per dot).
-    fn of(items: &[Item], remember: bool) -> FitMemory {
+    /// The memory of `items` (an empty one unless `remember`: a copy of ~0.5 kB per dot);
+    /// `steps`: the first steps of the iteration they come from ([`Kept::Prior`]).
+    fn of(items: &[Item], remember: bool, steps: Option<&[Option<Looked>]>) -> FitMemory {
         if !remember {
             return FitMemory::default();
         }
         FitMemory {
-            looked: items.iter().map(|i| i.looked.as_deref().cloned()).collect(),
+            looked: items
+                .iter()
+                .map(|i| i.looked.as_ref().and_then(|k| k.resolve(steps)).cloned())
+                .collect(),
             links: None,
         }
     }
@@ -511,7 +515,7 @@ struct Item {
     /// How far the dot moved in its last refit (standard deviations; 0: not refitted).
     moved: f64,
     /// What later looks need of the last fit (point-model fits in an iteration's passes).
-    looked: Option<std::sync::Arc<Looked>>,
+    looked: Option<Kept>,
     /// The last update was one Gauss-Newton step from the fit before ([`linear_step`]), not a
     /// fit.
     stepped: bool,
@@ -537,7 +541,7 @@ impl Item {
                         let ws = &f.ws;
                         Looked::new(&m, n, Window::new(ws.wx, ws.wy, ws.w, ws.h))
                     })
-                    .map(std::sync::Arc::new)
+                    .map(|l| Kept::Own(std::sync::Arc::new(l)))
             } else {
                 None
             },
@@ -555,6 +559,26 @@ impl Item {
             looked: None,
             stepped: false,
             rho_held: None,
+        }
+    }
+}
+
+/// What a record keeps for later looks: the matrices of its own last fit, or (a dot stepped
+/// from its prior in a first pass) those its step took, the prior's, by the dot's index in the
+/// iteration's first steps (`Iteration::first_steps`): a pointer's worth per dot instead of a
+/// ~0.5 kB copy and an allocation each.
+#[derive(Clone, Debug)]
+enum Kept {
+    Own(std::sync::Arc<Looked>),
+    Prior(u32),
+}
+
+impl Kept {
+    /// The matrices; `steps`: the iteration's first steps.
+    fn resolve<'b>(&'b self, steps: Option<&'b [Option<Looked>]>) -> Option<&'b Looked> {
+        match self {
+            Kept::Own(l) => Some(l),
+            Kept::Prior(i) => steps?.get(*i as usize)?.as_ref(),
         }
     }
 }
@@ -763,7 +787,7 @@ fn linear_step(
     ws: &crate::eval::Workspace,
     fit: &DotFit,
     looked: &Looked,
-    keep: Option<std::sync::Arc<Looked>>,
+    keep: Option<Kept>,
     l: &Look,
     kind: crate::eval::Kind,
     sampling: FitSampling,
@@ -893,6 +917,11 @@ struct Iteration<'a> {
 }
 
 impl<'a> Iteration<'a> {
+    /// The matrices `kept` refers to.
+    fn kept<'b>(&'b self, kept: Option<&'b Kept>) -> Option<&'b Looked> {
+        kept?.resolve(self.first_steps)
+    }
+
     fn new(
         img: &'a Image,
         mask: Option<&'a Mask>,
@@ -1130,7 +1159,7 @@ impl<'a> Iteration<'a> {
                     linear_sweeps: 0,
                     linear_steps,
                 };
-                let mut memory = FitMemory::of(&items, self.remember);
+                let mut memory = FitMemory::of(&items, self.remember, self.first_steps);
                 if self.remember {
                     memory.links = Some(links.memory(self.seeds));
                 }
@@ -1359,7 +1388,7 @@ impl<'a> Iteration<'a> {
                     // frame): one Gauss-Newton step from the prior with its Fisher matrix (the
                     // fit with the neighbours held, to second order)
                     let from = match check.map(|c| &c[i]) {
-                        Some(item) => item.looked.as_deref().map(|l| {
+                        Some(item) => self.kept(item.looked.as_ref()).map(|l| {
                             (
                                 item.fit,
                                 l,
@@ -1374,7 +1403,8 @@ impl<'a> Iteration<'a> {
                                 let mut from = *own;
                                 from.index = s.index;
                                 from.flags = flags | s.flags;
-                                let keep = kind.looked_at.then(|| std::sync::Arc::new(l.clone()));
+                                // (the memory's matrix, not a copy of it)
+                                let keep = kind.looked_at.then_some(Kept::Prior(i as u32));
                                 (from, l, None, keep)
                             }),
                     };
