@@ -1884,9 +1884,11 @@ impl Links {
             self.windows.near_unsorted(around(now), near);
             for &i in near.iter() {
                 let s = &seeds[i];
-                // (the rows the old model reached no longer hold j; no other row did)
+                // (the rows the old model reached no longer hold j; a row linked from a model
+                // within RELINK of the old one may lie just outside their reach and still hold
+                // it: its entry is replaced, never doubled)
                 if i != j && !skip(i) && m.reaches(s.window) && !same_seed(s, &seeds[j]) {
-                    self.rows.push(i, (j as u32, m.share_in(s.window)));
+                    self.rows.set(i, (j as u32, m.share_in(s.window)));
                 }
             }
         }
@@ -1984,6 +1986,15 @@ impl LinkRows {
         let s = self.start[i] as usize;
         self.data[s + l] = e;
         self.len[i] += 1;
+    }
+
+    /// Neighbour `e.0`'s entry of row `i` made `e` (appended where the row has none).
+    fn set(&mut self, i: usize, e: (u32, f64)) {
+        let (s, l) = (self.start[i] as usize, self.len[i] as usize);
+        match self.data[s..s + l].iter_mut().find(|x| x.0 == e.0) {
+            Some(x) => *x = e,
+            None => self.push(i, e),
+        }
     }
 
     /// Removes neighbour `j` from row `i` (the order of the others kept).
@@ -2933,7 +2944,7 @@ mod link_tests {
     use bostrack_core::{DotFit, DotFlags, FitStatus, Gaussian2D, GridIndex, Seed, Window};
 
     /// Every operation on the flat rows against a `Vec` per row (pseudo-random pushes past
-    /// the rows' room, removals, replacements).
+    /// the rows' room, entries set, removals, replacements).
     #[test]
     fn link_rows_behave_as_a_vec_per_row() {
         let n = 40;
@@ -2958,10 +2969,18 @@ mod link_tests {
         for step in 0..4000 {
             let i = next() % n;
             match next() % 4 {
-                0 | 1 => {
+                0 => {
                     let e = ((next() % 12) as u32, step as f64);
                     rows.push(i, e);
                     model[i].push(e);
+                }
+                1 => {
+                    let e = ((next() % 12) as u32, step as f64);
+                    rows.set(i, e);
+                    match model[i].iter_mut().find(|x| x.0 == e.0) {
+                        Some(x) => *x = e,
+                        None => model[i].push(e),
+                    }
                 }
                 2 => {
                     let j = (next() % 12) as u32;
