@@ -1906,11 +1906,10 @@ struct LinkMemory {
 }
 
 impl LinkMemory {
-    /// Whether these are links of `seeds`' dots (as many).
+    /// Whether these are links of `seeds`' dots (as many; the rows, models and windows are
+    /// one per seed by construction, [`Links::memory`]).
     fn fits(&self, seeds: &[Seed]) -> bool {
         self.windows.len() == seeds.len()
-            && self.linked.len() == seeds.len()
-            && self.rows.len() == seeds.len()
     }
 }
 
@@ -1961,10 +1960,6 @@ impl LinkRows {
             }
         }
         rows
-    }
-
-    fn len(&self) -> usize {
-        self.start.len()
     }
 
     fn row(&self, i: usize) -> &[(u32, f64)] {
