@@ -218,9 +218,34 @@ impl Fitter {
         }
         ws.resize(c.x, c.y, c.width, c.height);
         let mut n_used = 0;
+        // (below: saturated; +∞ without a level; NaN and ±∞ are never below it and above −∞)
+        let level = img.meta.saturation.unwrap_or(f64::INFINITY);
+        let (x0, cw) = (c.x as usize, c.width);
         for j in 0..c.height {
             let y = c.y as usize + j;
-            let row = &img.row(y)[c.x as usize..c.x as usize + c.width];
+            let row = &img.row(y)[x0..x0 + cw];
+            // a row of usable pixels (nearly every row) is copied whole: the tests below
+            // without a branch per pixel
+            // (counts: a sum of the tests vectorises, a test with an early exit does not)
+            let usable_row = row
+                .iter()
+                .map(|&v| usize::from((v < level) & (v > f64::NEG_INFINITY)))
+                .sum::<usize>()
+                == cw
+                && mask.is_none_or(|m| {
+                    m.as_slice()[y * iw + x0..][..cw]
+                        .iter()
+                        .map(|&k| usize::from(k))
+                        .sum::<usize>()
+                        == cw
+                });
+            if usable_row {
+                let k0 = j * cw;
+                ws.data[k0..k0 + cw].copy_from_slice(row);
+                ws.keep[k0..k0 + cw].fill(1.0);
+                n_used += cw;
+                continue;
+            }
             for (i, &v) in row.iter().enumerate() {
                 let k = j * c.width + i;
                 let x = c.x as usize + i;
@@ -1009,4 +1034,83 @@ fn same_start(a: &Theta, b: &Theta) -> bool {
     a.iter()
         .zip(b)
         .all(|(x, y)| (x - y).abs() <= 1e-12 * x.abs().max(y.abs()).max(1.0))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use bostrack_core::{Image, ImageMeta, Mask};
+    use rand::{RngExt, SeedableRng};
+
+    /// `load_image` (whole usable rows copied at once, the others pixel by pixel) against the
+    /// rule of every pixel: a NaN or ±∞ sample, a masked pixel or one at the saturation level
+    /// is left out (0, keep 0) with its flag; windows at or over the image's edges are flagged
+    /// BORDER.
+    #[test]
+    fn loaded_windows_follow_the_pixel_rule() {
+        let (w, h) = (41, 33);
+        let mut rng = rand::rngs::StdRng::seed_from_u64(12345);
+        let data: Vec<f64> = (0..w * h)
+            .map(|_| match rng.random_range(0..200u32) {
+                0 => f64::NAN,
+                1 => f64::INFINITY,
+                2 => f64::NEG_INFINITY,
+                3 => 4095.0,
+                4 => 5000.0,
+                _ => rng.random_range(100.0..3100.0),
+            })
+            .collect();
+        let img = Image::new(w, h, data, ImageMeta::synthetic(12)).unwrap(); // saturated at 4095
+        let keep: Vec<bool> = (0..w * h)
+            .map(|_| rng.random_range(0.0..1.0) > 0.01)
+            .collect();
+        let mask = Mask::new(w, h, keep).unwrap();
+        let mut f = Fitter::new(&FitConfig::default());
+        let mut rows_checked = 0;
+        for (x, y, ww, wh, border) in [
+            (3, 4, 13, 13, false),
+            (-5, -4, 13, 13, true),
+            (33, 25, 13, 13, true),
+            (0, 0, 41, 33, true),
+            (10, 10, 7, 5, false),
+        ] {
+            for m in [None, Some(&mask)] {
+                let win = Window::new(x, y, ww, wh);
+                let flags = f.load_image(&img, m, win);
+                let c = win.clip(w, h).unwrap();
+                assert_eq!(flags.contains(DotFlags::BORDER), border, "window {win:?}");
+                let mut want = DotFlags::NONE;
+                let mut used = 0;
+                assert_eq!((f.ws.w, f.ws.h), (c.width, c.height));
+                for j in 0..c.height {
+                    for i in 0..c.width {
+                        let (px, py) = (c.x as usize + i, c.y as usize + j);
+                        let v = img.row(py)[px];
+                        let ok = if !v.is_finite() {
+                            want |= DotFlags::NAN_PIXELS;
+                            false
+                        } else if m.is_some_and(|m| !m.keeps(px, py)) {
+                            want |= DotFlags::MASKED;
+                            false
+                        } else if v >= 4095.0 {
+                            want |= DotFlags::SATURATED;
+                            false
+                        } else {
+                            true
+                        };
+                        let k = j * c.width + i;
+                        assert_eq!(f.ws.keep[k], if ok { 1.0 } else { 0.0 });
+                        assert_eq!(f.ws.data[k], if ok { v } else { 0.0 });
+                        used += usize::from(ok);
+                    }
+                    rows_checked += 1;
+                }
+                assert_eq!(f.ws.n_used, used);
+                let mut got = flags;
+                got.remove(DotFlags::BORDER);
+                assert_eq!(got, want, "window {win:?}");
+            }
+        }
+        assert!(rows_checked > 100);
+    }
 }
