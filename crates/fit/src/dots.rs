@@ -1428,13 +1428,7 @@ impl<'a> Iteration<'a> {
                             }
                         }
                         (None, Some(canvas)) => {
-                            canvas.subtract_neighbours(
-                                &mut f.ws,
-                                i,
-                                hood,
-                                near,
-                                own_back.is_none(),
-                            );
+                            canvas.subtract_neighbours(&mut f.ws, i, hood, own_back.is_none());
                         }
                         (None, None) => {
                             for_each_neighbour(&mut f.ws, i, hood, near, |ws, amp| {
@@ -1568,6 +1562,8 @@ struct Neighbourhood<'a> {
     index: NeighbourIndex,
     /// Which fits may model a neighbour (fixed from the first models).
     gate: Plausible,
+    /// The seeds found twice ([`Twins`]), found at the first canvas subtraction.
+    twins: std::sync::OnceLock<Twins>,
 }
 
 impl<'a> Neighbourhood<'a> {
@@ -1582,7 +1578,13 @@ impl<'a> Neighbourhood<'a> {
             models,
             index,
             gate,
+            twins: std::sync::OnceLock::new(),
         }
+    }
+
+    /// The seeds closer than 1.5 px to seed `i` ([`same_seed`]).
+    fn twins_of(&self, i: usize) -> &[(u32, u32)] {
+        self.twins.get_or_init(|| Twins::of(self.seeds)).with(i)
     }
 
     /// Replaces dot `j`'s model by that of `fit` where the gate admits it (otherwise the dot
@@ -2190,19 +2192,18 @@ impl Canvas {
 
     /// Subtracts from the loaded window of seed `i` every neighbour model as
     /// [`for_each_neighbour`] does (the canvas, minus the dot's own model and any seed closer
-    /// than 1.5 px); returns how many neighbours touch the window. `own: false` leaves the dot's
+    /// than 1.5 px, [`Twins`]: no neighbour query per window). `own: false` leaves the dot's
     /// own model subtracted, for a caller that adds it back itself ([`look`]'s `own_back`).
     fn subtract_neighbours(
         &self,
         ws: &mut crate::eval::Workspace,
         i: usize,
         hood: &Neighbourhood,
-        near: &mut Vec<usize>,
         own: bool,
-    ) -> u32 {
+    ) {
         let (w, h) = (ws.w, ws.h);
         if w == 0 || h == 0 {
-            return 0;
+            return;
         }
         let (wx, wy) = (ws.wx as usize, ws.wy as usize);
         for j in 0..h {
@@ -2220,15 +2221,13 @@ impl Canvas {
         if own {
             self.add_back(ws, i, &hood.models);
         }
-        let mut count = 0;
-        hood.touching(i, win, near, |j, _, same| {
-            if same {
+        // (what `Neighbourhood::touching` calls "same", without searching the neighbours)
+        for &(_, j) in hood.twins_of(i) {
+            let j = j as usize;
+            if hood.models[j].as_ref().is_some_and(|m| m.reaches(win)) {
                 self.add_back(ws, j, &hood.models);
-            } else {
-                count += 1;
             }
-        });
-        count
+        }
     }
 
     /// Adds model `j`'s part of the canvas over the workspace window back to its data.
@@ -2757,6 +2756,52 @@ fn absent(s: &Seed, fit: &DotFit) -> bool {
 fn same_seed(a: &Seed, b: &Seed) -> bool {
     let (dx, dy) = (a.centre[0] - b.centre[0], a.centre[1] - b.centre[1]);
     dx * dx + dy * dy < 1.5 * 1.5
+}
+
+/// The pairs of seeds closer than 1.5 px to each other ([`same_seed`]: one dot found twice,
+/// never subtracted from the other's window), both ways round, sorted: what a window's
+/// subtraction from a [`Canvas`] adds back, fixed by the seeds (rare: most seeds have none).
+struct Twins(Vec<(u32, u32)>);
+
+impl Twins {
+    fn of(seeds: &[Seed]) -> Twins {
+        let finite = |s: &Seed| s.centre.iter().all(|v| v.is_finite());
+        let index = NeighbourIndex::of_points(
+            seeds
+                .iter()
+                .map(|s| finite(s).then_some((s.centre[0], s.centre[1], 1.5))),
+        );
+        let pairs: Vec<(u32, u32)> = seeds
+            .par_iter()
+            .enumerate()
+            .with_min_len(256)
+            .map_init(Vec::new, |near, (i, s)| {
+                if !finite(s) {
+                    return Vec::new();
+                }
+                // (a one-pixel window at the centre: the index looks 1.5 px beyond it)
+                let at = |v: f64| v.floor() as i64;
+                index.near_unsorted(Window::new(at(s.centre[0]), at(s.centre[1]), 1, 1), near);
+                let mut twins: Vec<(u32, u32)> = near
+                    .iter()
+                    .filter(|&&j| j != i && same_seed(s, &seeds[j]))
+                    .map(|&j| (i as u32, j as u32))
+                    .collect();
+                twins.sort_unstable();
+                twins
+            })
+            .flatten()
+            .collect();
+        Twins(pairs)
+    }
+
+    /// The pairs `(i, j)` of seed `i`.
+    fn with(&self, i: usize) -> &[(u32, u32)] {
+        let i = i as u32;
+        let lo = self.0.partition_point(|p| p.0 < i);
+        let hi = lo + self.0[lo..].partition_point(|p| p.0 == i);
+        &self.0[lo..hi]
+    }
 }
 
 /// Fitted dots bucketed on a coarse grid, for finding the neighbours of a window.
