@@ -719,32 +719,23 @@ fn look(
         add_inside(ws, b, amp);
     }
     // Σ w r·basis (basis = E·{1, X, Y, X², XY, Y²}, 1), Σ w r² and Σ r², r = data − μ
-    let mut g = [0.0f64; 7];
-    let (mut chi2, mut ssr) = (0.0, 0.0);
-    for j in 0..ws.h {
-        let y = (ws.wy + j as i64) as f64 - tb[IY];
-        for i in 0..ws.w {
-            let k = j * ws.w + i;
-            if ws.keep[k] == 0.0 {
-                continue;
-            }
-            let x = (ws.wx + i as i64) as f64 - tb[IX];
-            let e = ws.tmp[k];
-            let mu = bg + amp * e;
-            let r = ws.data[k] - mu;
-            let wr = r / noise.variance(mu);
-            let we = wr * e;
-            g[0] += we;
-            g[1] += we * x;
-            g[2] += we * y;
-            g[3] += we * x * x;
-            g[4] += we * x * y;
-            g[5] += we * y * y;
-            g[6] += wr;
-            chi2 += wr * r;
-            ssr += r * r;
-        }
-    }
+    let n = ws.w * ws.h;
+    let inp = crate::simd::LookIn {
+        e: &ws.tmp[..n],
+        d: &ws.data[..n],
+        keep: &ws.keep[..n],
+        w: ws.w,
+        h: ws.h,
+        amp,
+        bg,
+        x_first: ws.wx as f64 - tb[IX],
+        y_first: ws.wy as f64 - tb[IY],
+        read: noise.read_variance,
+        gain: noise.gain,
+        offset: noise.offset,
+    };
+    let crate::simd::LookSums { g, chi2, ssr } =
+        crate::simd::look_sums(crate::simd::arch(), &inp, &mut ws.cols);
     let c = kind.coefficients(&tb, &crate::eval::Shape::of(&tb));
     let nf = kind.n_free();
     let mut v = [0.0; 7];

@@ -43,6 +43,71 @@ fn store_lanes<S: Simd>(simd: S, o: &mut [f64], v: S::f64s) {
     }
 }
 
+/// A kernel whose lanes are a window's columns: its inputs and the scratch of the columns'
+/// sums (at least [`acc_len`] of the window's width).
+struct Columns<'a, I> {
+    inp: &'a I,
+    acc: &'a mut [f64],
+}
+
+impl<I> Columns<'_, I> {
+    /// The column loop of a kernel over a `w × h` window: for each group of lanes (first column
+    /// `c0`), `row(t, c0, j)` adds the terms of row `j` to the group's `N` sums `t` in
+    /// registers, row after row in order; the sums then go to the scratch. Then
+    /// `column(i, sums)` for every column `i` in order, with `sums.at(q)` its sum `q` (the
+    /// scalar fold).
+    #[inline(always)]
+    fn sums<S: Simd, const N: usize>(
+        &mut self,
+        simd: S,
+        (w, h): (usize, usize),
+        mut row: impl FnMut(&mut [S::f64s; N], usize, usize),
+        mut column: impl FnMut(usize, Lane),
+    ) {
+        let lanes = S::F64_LANES;
+        let groups = w.div_ceil(lanes);
+        let zero = simd.splat_f64s(0.0);
+        for k in 0..groups {
+            let mut t = [zero; N];
+            for j in 0..h {
+                row(&mut t, k * lanes, j);
+            }
+            let out = &mut self.acc[k * N * lanes..(k + 1) * N * lanes];
+            S::as_mut_simd_f64s(out).0.copy_from_slice(&t);
+        }
+        for (k, group) in self.acc[..groups * N * lanes]
+            .chunks_exact(N * lanes)
+            .enumerate()
+        {
+            for l in 0..lanes.min(w - k * lanes) {
+                column(k * lanes + l, Lane { group, l, lanes });
+            }
+        }
+    }
+}
+
+/// One column's sums in the scratch of [`Columns::sums`].
+#[derive(Clone, Copy)]
+struct Lane<'a> {
+    group: &'a [f64],
+    l: usize,
+    lanes: usize,
+}
+
+impl Lane<'_> {
+    /// Sum `q` of the column.
+    #[inline(always)]
+    fn at(self, q: usize) -> f64 {
+        self.group[q * self.lanes + self.l]
+    }
+}
+
+/// The lanes of `a` (a `w`-wide row-major window) at row `j` from column `c0`.
+#[inline(always)]
+fn row_lanes<S: Simd>(simd: S, a: &[f64], w: usize, c0: usize, j: usize) -> S::f64s {
+    load_lanes(simd, &a[j * w + c0..j * w + (c0 + S::F64_LANES).min(w)])
+}
+
 /// Widest lane count of any path (sizes the column accumulators).
 pub(crate) const MAX_LANES: usize = 8;
 /// Column accumulators per window column: `Σ_rows w E² Yⁿ` (n = 0..4), `Σ w E Yⁿ` (0..2),
@@ -82,7 +147,7 @@ pub(crate) struct MomentsIn<'a> {
 /// The moments of a pass on the given path; `acc` is scratch of at least
 /// [`acc_len`]`(w)` values.
 pub(crate) fn point_moments(arch: Arch, inp: &MomentsIn, acc: &mut [f64]) -> Moments {
-    arch.dispatch(MomentsKernel { inp, acc })
+    arch.dispatch(Columns { inp, acc })
 }
 
 /// Scratch length [`point_moments`] and [`basis_sums`] need for a window `w` columns wide.
@@ -90,16 +155,11 @@ pub(crate) fn acc_len(w: usize) -> usize {
     w.div_ceil(MAX_LANES) * MAX_LANES * N_ACC.max(N_BASIS)
 }
 
-struct MomentsKernel<'a, 'b> {
-    inp: &'a MomentsIn<'b>,
-    acc: &'a mut [f64],
-}
-
-impl WithSimd for MomentsKernel<'_, '_> {
+impl WithSimd for Columns<'_, MomentsIn<'_>> {
     type Output = Moments;
 
     #[inline(always)]
-    fn with_simd<S: Simd>(self, simd: S) -> Moments {
+    fn with_simd<S: Simd>(mut self, simd: S) -> Moments {
         let MomentsIn {
             e,
             d,
@@ -112,17 +172,14 @@ impl WithSimd for MomentsKernel<'_, '_> {
             x_first,
             y_first,
         } = *self.inp;
-        let lanes = S::F64_LANES;
-        let nch = w.div_ceil(lanes);
         let (vamp, vbg) = (simd.splat_f64s(amp), simd.splat_f64s(bg));
+        let mut m = Moments::default();
         // column group after column group, every row in order, the sums in registers
-        for k in 0..nch {
-            let c0 = k * lanes;
-            let load =
-                |a: &[f64], j: usize| load_lanes(simd, &a[j * w + c0..j * w + (c0 + lanes).min(w)]);
-            let zero = simd.splat_f64s(0.0);
-            let mut t = [zero; N_ACC];
-            for j in 0..h {
+        self.sums::<S, N_ACC>(
+            simd,
+            (w, h),
+            |t, c0, j| {
+                let load = |a: &[f64], j: usize| row_lanes(simd, a, w, c0, j);
                 let y = y_first + j as f64;
                 let y2 = y * y;
                 let (ei, di, ki, wi) = (load(e, j), load(d, j), load(keep, j), load(wt, j));
@@ -148,23 +205,13 @@ impl WithSimd for MomentsKernel<'_, '_> {
                 t[12] = simd.add_f64s(t[12], wr);
                 t[13] = simd.add_f64s(t[13], simd.mul_f64s(wr, r));
                 t[14] = simd.add_f64s(t[14], simd.mul_f64s(simd.mul_f64s(ki, r), r));
-            }
-            let out = &mut self.acc[k * N_ACC * lanes..(k + 1) * N_ACC * lanes];
-            let (out, _) = S::as_mut_simd_f64s(out);
-            out.copy_from_slice(&t);
-        }
-        // fold the columns with their X powers (scalar, columns in order)
-        let mut m = Moments::default();
-        for (k, a) in self.acc[..nch * N_ACC * lanes]
-            .chunks_exact(N_ACC * lanes)
-            .enumerate()
-        {
-            for l in 0..lanes.min(w - k * lanes) {
-                let c = |q: usize| a[q * lanes + l];
-                let x = x_first + (k * lanes + l) as f64;
+            },
+            // the columns folded (scalar, in order)
+            |i, c| {
+                let x = x_first + i as f64;
                 let x2 = x * x;
                 let (x3, x4) = (x2 * x, x2 * x2);
-                let (c0, c1, c2, c3, c4) = (c(0), c(1), c(2), c(3), c(4));
+                let (c0, c1, c2, c3, c4) = (c.at(0), c.at(1), c.at(2), c.at(3), c.at(4));
                 m.m2[0][0] += c0;
                 m.m2[1][0] += c0 * x;
                 m.m2[2][0] += c0 * x2;
@@ -180,8 +227,8 @@ impl WithSimd for MomentsKernel<'_, '_> {
                 m.m2[0][3] += c3;
                 m.m2[1][3] += c3 * x;
                 m.m2[0][4] += c4;
-                let (d0, d1, d2) = (c(5), c(6), c(7));
-                let (r0, r1, r2) = (c(8), c(9), c(10));
+                let (d0, d1, d2) = (c.at(5), c.at(6), c.at(7));
+                let (r0, r1, r2) = (c.at(8), c.at(9), c.at(10));
                 m.m1[0][0] += d0;
                 m.m1[1][0] += d0 * x;
                 m.m1[2][0] += d0 * x2;
@@ -194,13 +241,116 @@ impl WithSimd for MomentsKernel<'_, '_> {
                 m.r1[0][1] += r1;
                 m.r1[1][1] += r1 * x;
                 m.r1[0][2] += r2;
-                m.m0 += c(11);
-                m.r0 += c(12);
-                m.cost += c(13);
-                m.ssr += c(14);
-            }
-        }
+                m.m0 += c.at(11);
+                m.r0 += c.at(12);
+                m.cost += c.at(13);
+                m.ssr += c.at(14);
+            },
+        );
         m
+    }
+}
+
+/// Inputs of [`look_sums`]: row-major `w × h` arrays of `E`, the data and `keep`; the model is
+/// `bg + amp·E` and a pixel's weight `keep / variance(model)`, with the variance of
+/// `NoiseModel::variance`, `max(read + gain · max(model − offset, 0), 1e-12)`; the first column
+/// and row are at `X = x_first`, `Y = y_first`.
+pub(crate) struct LookIn<'a> {
+    pub e: &'a [f64],
+    pub d: &'a [f64],
+    pub keep: &'a [f64],
+    pub w: usize,
+    pub h: usize,
+    pub amp: f64,
+    pub bg: f64,
+    pub x_first: f64,
+    pub y_first: f64,
+    pub read: f64,
+    pub gain: f64,
+    pub offset: f64,
+}
+
+/// The sums of a look at a dot (`dots::look`): `g = Σ w r E·(1, X, Y, X², XY, Y²)` and
+/// `g[6] = Σ w r`, `chi2 = Σ w r²`, `ssr = Σ keep r²`, with `r = data − model` and the weights
+/// of [`LookIn`].
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub(crate) struct LookSums {
+    pub g: [f64; 7],
+    pub chi2: f64,
+    pub ssr: f64,
+}
+
+/// Column accumulators of [`look_sums`]: `Σ w r E Yⁿ` (n = 0..2), `Σ w r`, `Σ w r²`,
+/// `Σ keep r²`.
+const N_LOOK: usize = 6;
+
+/// The sums of a look on the given path; `acc` is scratch of at least [`acc_len`]`(w)` values.
+pub(crate) fn look_sums(arch: Arch, inp: &LookIn, acc: &mut [f64]) -> LookSums {
+    arch.dispatch(Columns { inp, acc })
+}
+
+impl WithSimd for Columns<'_, LookIn<'_>> {
+    type Output = LookSums;
+
+    #[inline(always)]
+    fn with_simd<S: Simd>(mut self, simd: S) -> LookSums {
+        let LookIn {
+            e,
+            d,
+            keep,
+            w,
+            h,
+            amp,
+            bg,
+            x_first,
+            y_first,
+            read,
+            gain,
+            offset,
+        } = *self.inp;
+        let (vamp, vbg) = (simd.splat_f64s(amp), simd.splat_f64s(bg));
+        let (vread, vgain) = (simd.splat_f64s(read), simd.splat_f64s(gain));
+        let (voff, tiny) = (simd.splat_f64s(offset), simd.splat_f64s(1e-12));
+        let mut s = LookSums::default();
+        // column group after column group, every row in order, the sums in registers
+        self.sums::<S, N_LOOK>(
+            simd,
+            (w, h),
+            |t, c0, j| {
+                let load = |a: &[f64], j: usize| row_lanes(simd, a, w, c0, j);
+                let y = y_first + j as f64;
+                let (vy, vy2) = (simd.splat_f64s(y), simd.splat_f64s(y * y));
+                let (ei, di, ki) = (load(e, j), load(d, j), load(keep, j));
+                let mu = simd.add_f64s(vbg, simd.mul_f64s(vamp, ei));
+                let r = simd.sub_f64s(di, mu);
+                let above = simd.max_f64s(simd.sub_f64s(mu, voff), simd.splat_f64s(0.0));
+                let var = simd.max_f64s(simd.add_f64s(vread, simd.mul_f64s(vgain, above)), tiny);
+                let kr = simd.mul_f64s(ki, r);
+                let wr = simd.div_f64s(kr, var);
+                let we = simd.mul_f64s(wr, ei);
+                t[0] = simd.add_f64s(t[0], we);
+                t[1] = simd.add_f64s(t[1], simd.mul_f64s(we, vy));
+                t[2] = simd.add_f64s(t[2], simd.mul_f64s(we, vy2));
+                t[3] = simd.add_f64s(t[3], wr);
+                t[4] = simd.add_f64s(t[4], simd.mul_f64s(wr, r));
+                t[5] = simd.add_f64s(t[5], simd.mul_f64s(kr, r));
+            },
+            // the columns folded (scalar, in order)
+            |i, c| {
+                let x = x_first + i as f64;
+                let (c0, c1) = (c.at(0), c.at(1));
+                s.g[0] += c0;
+                s.g[1] += c0 * x;
+                s.g[2] += c1;
+                s.g[3] += c0 * x * x;
+                s.g[4] += c1 * x;
+                s.g[5] += c.at(2);
+                s.g[6] += c.at(3);
+                s.chi2 += c.at(4);
+                s.ssr += c.at(5);
+            },
+        );
+        s
     }
 }
 
@@ -296,19 +446,14 @@ pub(crate) struct BasisIn<'a> {
 /// column's sums over the rows in order, the columns folded in order: the same bits on every
 /// path); `acc` is scratch of at least [`acc_len`]`(w)` values.
 pub(crate) fn basis_sums(arch: Arch, inp: &BasisIn, acc: &mut [f64]) -> BasisSums {
-    arch.dispatch(BasisKernel { inp, acc })
+    arch.dispatch(Columns { inp, acc })
 }
 
-struct BasisKernel<'a, 'b> {
-    inp: &'a BasisIn<'b>,
-    acc: &'a mut [f64],
-}
-
-impl WithSimd for BasisKernel<'_, '_> {
+impl WithSimd for Columns<'_, BasisIn<'_>> {
     type Output = BasisSums;
 
     #[inline(always)]
-    fn with_simd<S: Simd>(self, simd: S) -> BasisSums {
+    fn with_simd<S: Simd>(mut self, simd: S) -> BasisSums {
         let BasisIn {
             phi,
             d,
@@ -319,16 +464,14 @@ impl WithSimd for BasisKernel<'_, '_> {
             amp,
             bg,
         } = *self.inp;
-        let lanes = S::F64_LANES;
-        let nch = w.div_ceil(lanes);
         let (vamp, vbg) = (simd.splat_f64s(amp), simd.splat_f64s(bg));
-        for k in 0..nch {
-            let c0 = k * lanes;
-            let load =
-                |a: &[f64], j: usize| load_lanes(simd, &a[j * w + c0..j * w + (c0 + lanes).min(w)]);
-            let zero = simd.splat_f64s(0.0);
-            let mut t = [zero; N_BASIS];
-            for j in 0..h {
+        let mut out = BasisSums::default();
+        // column group after column group, every row in order, the sums in registers
+        self.sums::<S, N_BASIS>(
+            simd,
+            (w, h),
+            |t, c0, j| {
+                let load = |a: &[f64], j: usize| row_lanes(simd, a, w, c0, j);
                 let f = [
                     load(phi[0], j),
                     load(phi[1], j),
@@ -354,28 +497,19 @@ impl WithSimd for BasisKernel<'_, '_> {
                 t[34] = simd.add_f64s(t[34], wr);
                 t[35] = simd.add_f64s(t[35], simd.mul_f64s(wr, r));
                 t[36] = simd.add_f64s(t[36], simd.mul_f64s(simd.mul_f64s(ki, r), r));
-            }
-            let out = &mut self.acc[k * N_BASIS * lanes..(k + 1) * N_BASIS * lanes];
-            let (out, _) = S::as_mut_simd_f64s(out);
-            out.copy_from_slice(&t);
-        }
-        let mut out = BasisSums::default();
-        for (k, a) in self.acc[..nch * N_BASIS * lanes]
-            .chunks_exact(N_BASIS * lanes)
-            .enumerate()
-        {
-            for l in 0..lanes.min(w - k * lanes) {
-                let c = |q: usize| a[q * lanes + l];
+            },
+            // the columns folded (scalar, in order)
+            |_, c| {
                 for (q, g) in out.gram.iter_mut().enumerate() {
-                    *g += c(q);
+                    *g += c.at(q);
                 }
                 for (q, g) in out.grad.iter_mut().enumerate() {
-                    *g += c(28 + q);
+                    *g += c.at(28 + q);
                 }
-                out.cost += c(35);
-                out.ssr += c(36);
-            }
-        }
+                out.cost += c.at(35);
+                out.ssr += c.at(36);
+            },
+        );
         out
     }
 }
@@ -721,6 +855,51 @@ mod tests {
                 );
             }
             assert!((a.cost - cost).abs() <= 1e-12 * (1.0 + cost));
+
+            // a look's sums (signal-dependent weights), against the direct ones
+            let inp = LookIn {
+                e: &e,
+                d: &d,
+                keep: &keep,
+                w,
+                h,
+                amp: 1.7,
+                bg: 0.2,
+                x_first: -(w as f64) / 2.0 + 0.3,
+                y_first: -(h as f64) / 2.0 - 0.1,
+                read: 0.05,
+                gain: 0.3,
+                offset: 0.9,
+            };
+            let a = look_sums(fast, &inp, &mut acc);
+            assert_eq!(a, look_sums(Arch::Scalar, &inp, &mut acc), "{w}x{h}");
+            let mut want = LookSums::default();
+            for j in 0..h {
+                for i in 0..w {
+                    let k = j * w + i;
+                    if keep[k] == 0.0 {
+                        continue;
+                    }
+                    let (x, y) = (inp.x_first + i as f64, inp.y_first + j as f64);
+                    let mu = inp.bg + inp.amp * e[k];
+                    let r = d[k] - mu;
+                    let var = (inp.read + inp.gain * (mu - inp.offset).max(0.0)).max(1e-12);
+                    let (wr, basis) = (r / var, [1.0, x, y, x * x, x * y, y * y]);
+                    for (g, b) in want.g.iter_mut().zip(basis) {
+                        *g += wr * e[k] * b;
+                    }
+                    want.g[6] += wr;
+                    want.chi2 += wr * r;
+                    want.ssr += r * r;
+                }
+            }
+            let close = |a: f64, b: f64| (a - b).abs() <= 1e-12 * (1.0 + b.abs());
+            assert!(
+                a.g.iter().zip(&want.g).all(|(&a, &b)| close(a, b))
+                    && close(a.chi2, want.chi2)
+                    && close(a.ssr, want.ssr),
+                "{w}x{h}: {a:?} against {want:?}"
+            );
 
             // the factored quadrature's sums, for 1 to MAX_NODES nodes: both couplings on both
             // paths, against each other and against the definition
