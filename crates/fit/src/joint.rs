@@ -105,9 +105,11 @@ pub(crate) fn joint_bound(
     let n_nb = n_own - 1; // without the background
     let ib = kind.free().iter().position(|&p| p == IB)?;
     let dim = n_own + n_nb * neighbours.len();
-    let mut m = DMatrix::<f64>::zeros(dim, dim);
+    // the upper triangle of M, row-major: each pixel adds `wt ∇μ ∇μᵀ` row by row over
+    // contiguous slices (a neighbour too faint at a pixel has zero derivatives there, which add
+    // exactly nothing: the same sums as leaving it out)
+    let mut upper = vec![0.0; dim * dim];
     let mut grad = vec![0.0; dim];
-    let mut active: Vec<usize> = Vec::with_capacity(dim);
     let mut d = [0.0; 7];
     let w = dot.window;
     for y in w.y..w.y + w.height as i64 {
@@ -118,37 +120,36 @@ pub(crate) fn joint_bound(
             let (fx, fy) = (x as f64, y as f64);
             let mut mu = dot.theta[IB] + dot.eval(kind, fx, fy, &mut d);
             grad[..n_own].copy_from_slice(&d[..n_own]);
-            active.clear();
-            active.extend(0..n_own);
             for (k, nb) in neighbours.iter().enumerate() {
                 let v = nb.eval(kind, fx, fy, &mut d);
                 mu += v;
+                let at = n_own + k * n_nb;
+                let part = &mut grad[at..at + n_nb];
                 // a neighbour below 1e-7 of its peak here adds nothing measurable
                 if v.abs() < 1e-7 * nb.theta[2].abs() {
+                    part.fill(0.0);
                     continue;
                 }
-                let at = n_own + k * n_nb;
-                let mut o = 0;
-                for (q, v) in d[..n_own].iter().enumerate() {
-                    if q != ib {
-                        grad[at + o] = *v;
-                        active.push(at + o);
-                        o += 1;
-                    }
+                for (o, (_, v)) in part
+                    .iter_mut()
+                    .zip(d[..n_own].iter().enumerate().filter(|&(q, _)| q != ib))
+                {
+                    *o = *v;
                 }
             }
             let wt = 1.0 / noise.variance(mu);
-            for (a, &r) in active.iter().enumerate() {
-                let gr = wt * grad[r];
-                for &c in &active[a..] {
-                    m[(r, c)] += gr * grad[c];
+            for (r, (row, &g)) in upper.chunks_exact_mut(dim).zip(&grad).enumerate() {
+                let gr = wt * g;
+                for (m, &gc) in row[r..].iter_mut().zip(&grad[r..]) {
+                    *m += gr * gc;
                 }
             }
         }
     }
+    let mut m = DMatrix::<f64>::from_fn(dim, dim, |r, c| upper[r.min(c) * dim + r.max(c)]);
     // each neighbour's information from its own window outside this one, background marginalised
     for (k, nb) in neighbours.iter().enumerate() {
-        let mut own = DMatrix::<f64>::zeros(n_own, n_own);
+        let mut own = [[0.0; 7]; 7];
         let v = nb.window;
         for y in v.y..v.y + v.height as i64 {
             for x in v.x..v.x + v.width as i64 {
@@ -159,12 +160,12 @@ pub(crate) fn joint_bound(
                 let wt = 1.0 / noise.variance(mu);
                 for r in 0..n_own {
                     for c in r..n_own {
-                        own[(r, c)] += wt * d[r] * d[c];
+                        own[r][c] += wt * d[r] * d[c];
                     }
                 }
             }
         }
-        fill_lower(&mut own);
+        let own = DMatrix::<f64>::from_fn(n_own, n_own, |r, c| own[r.min(c)][r.max(c)]);
         let prior = marginalise(&own, ib)?;
         let at = n_own + k * n_nb;
         for r in 0..n_nb {
