@@ -2639,14 +2639,22 @@ impl NeighbourModel {
             ws.tmp[..n].fill(0.0);
             return;
         };
-        let inside =
-            |p: i64, lo: usize, hi: usize| p >= 0 && (p as usize) >= lo && (p as usize) <= hi;
-        for j in 0..ws.h {
-            let y_in = inside(ws.wy + j as i64, b.y_lo, b.y_hi);
-            for i in 0..ws.w {
-                if !(y_in && inside(ws.wx + i as i64, b.x_lo, b.x_hi)) {
-                    ws.tmp[j * ws.w + i] = 0.0;
-                }
+        // the window's columns (rows) inside the box: `a..z` (`a == z`: none)
+        let span = |w0: i64, n: usize, lo: usize, hi: usize| {
+            let n = n as i128;
+            let a = (lo as i128 - i128::from(w0)).clamp(0, n);
+            let z = (hi as i128 - i128::from(w0) + 1).clamp(a, n);
+            (a as usize, z as usize)
+        };
+        let (w, h) = (ws.w, ws.h);
+        let (i0, i1) = span(ws.wx, w, b.x_lo, b.x_hi);
+        let (j0, j1) = span(ws.wy, h, b.y_lo, b.y_hi);
+        for (j, row) in ws.tmp[..w * h].chunks_exact_mut(w.max(1)).enumerate() {
+            if (j0..j1).contains(&j) {
+                row[..i0].fill(0.0);
+                row[i1..].fill(0.0);
+            } else {
+                row.fill(0.0);
             }
         }
     }
@@ -2921,6 +2929,49 @@ impl NeighbourIndex {
 #[cfg(test)]
 mod tests {
     use super::erf_fast;
+
+    /// `clip_to_box` keeps exactly the pixels of the window inside the model's pixel box (the
+    /// rule of every pixel), for boxes inside, across and outside windows anywhere.
+    #[test]
+    fn clipping_keeps_the_pixels_inside_the_box() {
+        use super::{NeighbourModel, Sampling};
+        let mut ws = crate::eval::Workspace::default();
+        let mut checked = 0;
+        for (x0, y0, rx, ry) in [
+            (5.3, 6.7, 4.1, 2.2),
+            (0.2, -1.0, 3.0, 3.0),
+            (40.0, 3.0, 2.0, 2.0),
+        ] {
+            let m = NeighbourModel {
+                theta: [0.0; 7],
+                sampling: Sampling::Point,
+                x0,
+                y0,
+                rx,
+                ry,
+            };
+            let b = m.pixel_box(usize::MAX, usize::MAX);
+            for (wx, wy, w, h) in [(0, 0, 13, 11), (-4, -3, 9, 9), (6, 5, 7, 3), (30, 0, 20, 9)] {
+                ws.resize(wx, wy, w, h);
+                ws.tmp[..w * h].fill(1.0);
+                m.clip_to_box(&mut ws);
+                for j in 0..h {
+                    for i in 0..w {
+                        let (px, py) = (wx + i as i64, wy + j as i64);
+                        let inside = b.is_some_and(|b| {
+                            px >= b.x_lo as i64
+                                && px <= b.x_hi as i64
+                                && py >= b.y_lo as i64
+                                && py <= b.y_hi as i64
+                        });
+                        assert_eq!(ws.tmp[j * w + i], if inside { 1.0 } else { 0.0 });
+                        checked += usize::from(inside);
+                    }
+                }
+            }
+        }
+        assert!(checked > 50, "{checked} pixels inside");
+    }
 
     #[test]
     fn erf_fast_is_within_its_stated_error() {
