@@ -2770,27 +2770,34 @@ impl Twins {
                 .iter()
                 .map(|s| finite(s).then_some((s.centre[0], s.centre[1], 1.5))),
         );
-        let pairs: Vec<(u32, u32)> = seeds
+        // (blocks of seeds in parallel, each into one list, joined in seed order)
+        let mut pairs: Vec<(u32, u32)> = seeds
             .par_iter()
             .enumerate()
             .with_min_len(256)
-            .map_init(Vec::new, |near, (i, s)| {
-                if !finite(s) {
-                    return Vec::new();
-                }
-                // (a one-pixel window at the centre: the index looks 1.5 px beyond it)
-                let at = |v: f64| v.floor() as i64;
-                index.near_unsorted(Window::new(at(s.centre[0]), at(s.centre[1]), 1, 1), near);
-                let mut twins: Vec<(u32, u32)> = near
-                    .iter()
-                    .filter(|&&j| j != i && same_seed(s, &seeds[j]))
-                    .map(|&j| (i as u32, j as u32))
-                    .collect();
-                twins.sort_unstable();
-                twins
-            })
-            .flatten()
-            .collect();
+            .fold(
+                || (Vec::new(), Vec::new()),
+                |(mut near, mut pairs), (i, s)| {
+                    if finite(s) {
+                        // (a one-pixel window at the centre: the index looks 1.5 px beyond it)
+                        let at = |v: f64| v.floor() as i64;
+                        let win = Window::new(at(s.centre[0]), at(s.centre[1]), 1, 1);
+                        index.near_unsorted(win, &mut near);
+                        pairs.extend(
+                            near.iter()
+                                .filter(|&&j| j != i && same_seed(s, &seeds[j]))
+                                .map(|&j| (i as u32, j as u32)),
+                        );
+                    }
+                    (near, pairs)
+                },
+            )
+            .map(|(_, pairs)| pairs)
+            .reduce(Vec::new, |mut a, b| {
+                a.extend(b);
+                a
+            });
+        pairs.sort_unstable();
         Twins(pairs)
     }
 
