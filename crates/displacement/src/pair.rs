@@ -296,8 +296,9 @@ pub fn pair_dots<'a>(
     inputs: impl IntoIterator<Item = PairInput<'a>>,
     cfg: &DisplacementConfig,
 ) -> Vec<PairDot> {
-    inputs
-        .into_iter()
-        .filter_map(|p| pair_dot(&p, cfg))
-        .collect()
+    // (room for every input at once: a `filter_map` collect would grow the records by copies)
+    let inputs = inputs.into_iter();
+    let mut out = Vec::with_capacity(inputs.size_hint().0);
+    out.extend(inputs.filter_map(|p| pair_dot(&p, cfg)));
+    out
 }

@@ -2117,7 +2117,8 @@ struct PixelBox {
 }
 
 impl Canvas {
-    /// Renders into `values` (any contents; resized to the image and zeroed band by band).
+    /// Renders into `values` (any contents; resized to the image and zeroed band by band, a new
+    /// buffer by its resize).
     fn render(
         models: &[Option<NeighbourModel>],
         width: usize,
@@ -2128,6 +2129,8 @@ impl Canvas {
             .iter()
             .map(|m| m.as_ref().and_then(|m| m.pixel_box(width, height)))
             .collect();
+        // (a new buffer is zeroed by its resize: its bands need not be zeroed again)
+        let zeroed = values.is_empty();
         values.resize(width * height, 0.0);
         if width == 0 || height == 0 {
             return Canvas {
@@ -2151,7 +2154,9 @@ impl Canvas {
             .for_each_init(
                 || (Vec::new(), Vec::new(), Vec::new()),
                 |(out, v, q), (band, (chunk, list))| {
-                    chunk.fill(0.0);
+                    if !zeroed {
+                        chunk.fill(0.0);
+                    }
                     let r0 = band * BAND;
                     let r1 = r0 + chunk.len() / width - 1;
                     for &j in list {
