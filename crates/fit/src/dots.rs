@@ -2785,8 +2785,8 @@ impl Twins {
                 |(mut near, mut pairs), (i, s)| {
                     if finite(s) {
                         // (a one-pixel window at the centre: the index looks 1.5 px beyond it)
-                        let at = floor_i64;
-                        let win = Window::new(at(s.centre[0]), at(s.centre[1]), 1, 1);
+                        let [x, y] = s.centre.map(floor_i64);
+                        let win = Window::new(x, y, 1, 1);
                         index.near_unsorted(win, &mut near);
                         pairs.extend(
                             near.iter()
