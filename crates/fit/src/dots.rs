@@ -735,7 +735,7 @@ fn look(
         offset: noise.offset,
     };
     let crate::simd::LookSums { g, chi2, ssr } =
-        crate::simd::look_sums(crate::simd::arch(), &inp, &mut ws.cols);
+        crate::simd::column_sums(crate::simd::arch(), &inp, &mut ws.cols);
     let c = kind.coefficients(&tb, &crate::eval::Shape::of(&tb));
     let nf = kind.n_free();
     let mut v = [0.0; 7];

@@ -617,7 +617,7 @@ pub(crate) fn evaluate(
     }
 }
 
-/// Point-sampled pass with the moment accumulation ([`crate::simd::point_moments`]: per
+/// Point-sampled pass with the moment accumulation ([`crate::simd::column_sums`] of a `MomentsIn`: per
 /// column over the rows, then folded with the columns' X powers).
 fn eval_point_moments(ws: &mut Workspace, theta: &Theta, s: &Shape, noise: &NoiseModel) -> Pass {
     let x_first = ws.wx as f64 - theta[IX];
@@ -665,7 +665,7 @@ fn point_sums(ws: &mut Workspace, theta: &Theta, s: &Shape, noise: &NoiseModel) 
         mut r0,
         mut cost,
         ssr,
-    } = simd::point_moments(simd::arch(), &inp, &mut ws.cols);
+    } = simd::column_sums(simd::arch(), &inp, &mut ws.cols);
     if !variable {
         cost *= scale;
         m0 *= scale;
@@ -1065,7 +1065,7 @@ pub(crate) fn fill_phi(ws: &mut Workspace, theta: &Theta, sampling: Sampling, ki
 }
 
 /// Generic pass from the per-pixel basis in ws.e / ws.phi: G = Σ w φ φᵀ accumulated with the
-/// columns as SIMD lanes ([`simd::basis_sums`]; issue 17: 9.5 % of the σ 0.75 px scene's
+/// columns as SIMD lanes ([`simd::column_sums`] of a `BasisIn`; issue 17: 9.5 % of the σ 0.75 px scene's
 /// instructions as a scalar loop, 0.6 % now).
 pub(crate) fn eval_general(ws: &mut Workspace, theta: &Theta, noise: &NoiseModel) -> Pass {
     let variable = !noise.is_constant();
@@ -1087,7 +1087,7 @@ pub(crate) fn eval_general(ws: &mut Workspace, theta: &Theta, noise: &NoiseModel
         mut grad,
         mut cost,
         ssr,
-    } = simd::basis_sums(simd::arch(), &inp, &mut ws.cols);
+    } = simd::column_sums(simd::arch(), &inp, &mut ws.cols);
     if !variable {
         g.iter_mut().for_each(|v| *v *= inv_var);
         grad.iter_mut().for_each(|v| *v *= inv_var);

@@ -43,9 +43,25 @@ fn store_lanes<S: Simd>(simd: S, o: &mut [f64], v: S::f64s) {
     }
 }
 
+/// The sums of a column kernel over its inputs `inp` ([`MomentsIn`]: a point-sampled pass's
+/// moments; [`BasisIn`]: a pass over a per-pixel basis; [`LookIn`]: a look at a dot) on the
+/// given path (columns as lanes, each column's sums over the rows in order, the columns folded
+/// in order: the same bits on every path); `acc` is scratch of at least [`acc_len`]`(w)`
+/// values.
+pub(crate) fn column_sums<'a, I>(
+    arch: Arch,
+    inp: &'a I,
+    acc: &'a mut [f64],
+) -> <Columns<'a, I> as WithSimd>::Output
+where
+    Columns<'a, I>: WithSimd,
+{
+    arch.dispatch(Columns { inp, acc })
+}
+
 /// A kernel whose lanes are a window's columns: its inputs and the scratch of the columns'
 /// sums (at least [`acc_len`] of the window's width).
-struct Columns<'a, I> {
+pub(crate) struct Columns<'a, I> {
     inp: &'a I,
     acc: &'a mut [f64],
 }
@@ -128,7 +144,7 @@ pub(crate) struct Moments {
     pub ssr: f64,
 }
 
-/// Inputs of [`point_moments`]: row-major `w × h` arrays of `E`, the data, `keep` and the
+/// Inputs of [`column_sums`] of a [`MomentsIn`]: row-major `w × h` arrays of `E`, the data, `keep` and the
 /// weights; the model is `bg + amp·E`; the first column and row are at `X = x_first`,
 /// `Y = y_first`.
 pub(crate) struct MomentsIn<'a> {
@@ -144,17 +160,12 @@ pub(crate) struct MomentsIn<'a> {
     pub y_first: f64,
 }
 
-/// The moments of a pass on the given path; `acc` is scratch of at least
-/// [`acc_len`]`(w)` values.
-pub(crate) fn point_moments(arch: Arch, inp: &MomentsIn, acc: &mut [f64]) -> Moments {
-    arch.dispatch(Columns { inp, acc })
-}
-
-/// Scratch length [`point_moments`] and [`basis_sums`] need for a window `w` columns wide.
+/// Scratch length [`column_sums`] of a [`MomentsIn`] and [`column_sums`] of a [`BasisIn`] need for a window `w` columns wide.
 pub(crate) fn acc_len(w: usize) -> usize {
     w.div_ceil(MAX_LANES) * MAX_LANES * N_ACC.max(N_BASIS)
 }
 
+/// The moments of a pass ([`column_sums`] of a [`MomentsIn`]).
 impl WithSimd for Columns<'_, MomentsIn<'_>> {
     type Output = Moments;
 
@@ -251,7 +262,7 @@ impl WithSimd for Columns<'_, MomentsIn<'_>> {
     }
 }
 
-/// Inputs of [`look_sums`]: row-major `w × h` arrays of `E`, the data and `keep`; the model is
+/// Inputs of [`column_sums`] of a [`LookIn`]: row-major `w × h` arrays of `E`, the data and `keep`; the model is
 /// `bg + amp·E` and a pixel's weight `keep / variance(model)`, with the variance of
 /// `NoiseModel::variance`, `max(read + gain · max(model − offset, 0), 1e-12)`; the first column
 /// and row are at `X = x_first`, `Y = y_first`.
@@ -280,15 +291,11 @@ pub(crate) struct LookSums {
     pub ssr: f64,
 }
 
-/// Column accumulators of [`look_sums`]: `Σ w r E Yⁿ` (n = 0..2), `Σ w r`, `Σ w r²`,
+/// Column accumulators of [`column_sums`] of a [`LookIn`]: `Σ w r E Yⁿ` (n = 0..2), `Σ w r`, `Σ w r²`,
 /// `Σ keep r²`.
 const N_LOOK: usize = 6;
 
-/// The sums of a look on the given path; `acc` is scratch of at least [`acc_len`]`(w)` values.
-pub(crate) fn look_sums(arch: Arch, inp: &LookIn, acc: &mut [f64]) -> LookSums {
-    arch.dispatch(Columns { inp, acc })
-}
-
+/// The sums of a look ([`column_sums`] of a [`LookIn`]).
 impl WithSimd for Columns<'_, LookIn<'_>> {
     type Output = LookSums;
 
@@ -414,7 +421,7 @@ impl WithSimd for ExpRows<'_> {
     }
 }
 
-/// Column accumulators of [`basis_sums`]: `Σ w φ_b φ_c` (b ≤ c < 6: 21), `Σ w φ_b` (6),
+/// Column accumulators of [`column_sums`] of a [`BasisIn`]: `Σ w φ_b φ_c` (b ≤ c < 6: 21), `Σ w φ_b` (6),
 /// `Σ w`, `Σ w r φ_b` (6), `Σ w r`, `Σ w r²`, `Σ keep r²`.
 const N_BASIS: usize = 37;
 
@@ -429,7 +436,7 @@ pub(crate) struct BasisSums {
     pub ssr: f64,
 }
 
-/// Inputs of [`basis_sums`]: row-major `w × h` arrays of the basis `φ0..φ5`, the data, `keep`
+/// Inputs of [`column_sums`] of a [`BasisIn`]: row-major `w × h` arrays of the basis `φ0..φ5`, the data, `keep`
 /// and the weights; the model is `bg + amp·φ0`.
 pub(crate) struct BasisIn<'a> {
     pub phi: [&'a [f64]; 6],
@@ -442,13 +449,7 @@ pub(crate) struct BasisIn<'a> {
     pub bg: f64,
 }
 
-/// The sums of a pass over a per-pixel basis on the given path (columns as lanes, each
-/// column's sums over the rows in order, the columns folded in order: the same bits on every
-/// path); `acc` is scratch of at least [`acc_len`]`(w)` values.
-pub(crate) fn basis_sums(arch: Arch, inp: &BasisIn, acc: &mut [f64]) -> BasisSums {
-    arch.dispatch(Columns { inp, acc })
-}
-
+/// The sums of a pass over a per-pixel basis ([`column_sums`] of a [`BasisIn`]).
 impl WithSimd for Columns<'_, BasisIn<'_>> {
     type Output = BasisSums;
 
@@ -785,8 +786,8 @@ mod tests {
                 y_first: -(h as f64) / 2.0 - 0.1,
             };
             let mut acc = vec![f64::NAN; acc_len(w)];
-            let a = point_moments(fast, &inp, &mut acc);
-            let b = point_moments(Arch::Scalar, &inp, &mut acc);
+            let a = column_sums(fast, &inp, &mut acc);
+            let b = column_sums(Arch::Scalar, &inp, &mut acc);
             assert_eq!(a, b, "{w}x{h}");
             // against the direct sums
             let mut m2_11 = 0.0;
@@ -837,8 +838,8 @@ mod tests {
                 amp: 1.3,
                 bg: -0.4,
             };
-            let a = basis_sums(fast, &inp, &mut acc);
-            assert_eq!(a, basis_sums(Arch::Scalar, &inp, &mut acc), "{w}x{h}");
+            let a = column_sums(fast, &inp, &mut acc);
+            assert_eq!(a, column_sums(Arch::Scalar, &inp, &mut acc), "{w}x{h}");
             let (mut g34, mut g5c, mut grad2, mut cost) = (0.0, 0.0, 0.0, 0.0);
             for k in 0..w * h {
                 let r = d[k] - (inp.bg + inp.amp * phi[0][k]);
@@ -871,8 +872,8 @@ mod tests {
                 gain: 0.3,
                 offset: 0.9,
             };
-            let a = look_sums(fast, &inp, &mut acc);
-            assert_eq!(a, look_sums(Arch::Scalar, &inp, &mut acc), "{w}x{h}");
+            let a = column_sums(fast, &inp, &mut acc);
+            assert_eq!(a, column_sums(Arch::Scalar, &inp, &mut acc), "{w}x{h}");
             let mut want = LookSums::default();
             for j in 0..h {
                 for i in 0..w {
