@@ -17,7 +17,8 @@
 //! 3. With the real sample beside the repository (`testdata/bos-sample.toml`, its no-flow stack,
 //!    figures off): one gradient frame (`process_frame` + `write_frame`) on a 1-thread pool,
 //!    its CPU time (the pool thread's own run time from `/proc/thread-self/schedstat`,
-//!    nanoseconds) and its stage times, best of `--runs`; the fit stage's share apart.
+//!    nanoseconds) and its stage times, best of `--runs`; the fit stage's share and the
+//!    writing's own CPU apart.
 //!
 //! CPU times do not grow with the machine's load the way wall times do (they still grow a
 //! little with cache contention): on the shared 2-core machine read the CPU columns.
