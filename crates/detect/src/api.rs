@@ -641,6 +641,7 @@ pub fn detect(
             predicted: p,
             peak,
             peak_extra: 1.0,
+            window_from: None,
         });
     }
     // 6. Noise of the dot map at the cell centres, classification.
@@ -789,7 +790,11 @@ fn fallback_noise(stat: impl Fn([f64; 2]) -> Option<f64>, w: usize, h: usize, sp
 /// from the largest connected group of dots whose first-pass displacement is under a quarter
 /// spacing and agrees with their neighbours' (a periodic target cannot tell a displacement from
 /// the same minus a lattice vector: the largest such group is taken to be truly at rest).
-/// `predicted` = reference position + the neighbours' median displacement.
+/// `predicted` = reference position + the neighbours' median displacement. A tracked seed's fit
+/// window is its reference seed's window moved by the whole pixels of its displacement from the
+/// reference centre (rounded per axis), so that a dot that moved by less than half a pixel is
+/// fitted over the pixels of its reference fit; where the reference window was cut by the
+/// image's edge, the window centred on the tracked centre.
 pub fn track(
     image: &Image,
     mask: Option<&Mask>,
@@ -1086,7 +1091,8 @@ pub fn track(
     }
 
     // Sites: predicted = reference position + the neighbours' median displacement (each seed
-    // on its own).
+    // on its own), each with its reference window.
+    let side = 2 * crate::classify::window_half(cfg, s, sigma) + 1;
     let sites: Vec<Site> = (0..n)
         .into_par_iter()
         .with_min_len(PAR_MIN)
@@ -1100,11 +1106,16 @@ pub fn track(
             } else {
                 0.0
             };
+            // (the reference window where it was not clipped by the image: a full window)
+            let r = &seeds[k];
+            let full = r.window.width == side && r.window.height == side;
             Site {
-                index: seeds[k].index,
+                index: r.index,
                 predicted: [q[k][0] + pd[0], q[k][1] + pd[1]],
                 peak: result[k],
                 peak_extra,
+                window_from: (full && r.centre.iter().all(|v| v.is_finite()))
+                    .then_some((r.centre, r.window)),
             }
         })
         .collect();

@@ -22,6 +22,10 @@ pub(crate) struct Site {
     /// Extra signal-to-noise demanded when the decision rests on `peak` (a position found by a
     /// search, whose noise is biased upwards) rather than on `predicted`.
     pub peak_extra: f64,
+    /// When tracking: the reference seed's centre and its (unclipped) fit window. The site's
+    /// window is then that window moved by the whole pixels of the dot's displacement from the
+    /// reference centre, instead of the window centred on its own centre.
+    pub window_from: Option<([f64; 2], Window)>,
 }
 
 /// A classified site.
@@ -1017,7 +1021,20 @@ pub(crate) fn classify(
                         }
                     }
                 }
-                let win = Window::centred(c[0], c[1], half_w);
+                // a tracked dot keeps its reference window, moved by the whole pixels of its
+                // displacement: where it moved by less than half a pixel its fit sees the
+                // reference fit's pixels (a window of its own rounded centre would differ for
+                // the dots whose centre lies near a pixel's edge, ~10 % of a no-flow image, and
+                // cost the fit stage the reference's remembered matrices there)
+                let win = match sites[k].window_from {
+                    Some((r, rw)) => Window::new(
+                        rw.x + (c[0] - r[0]).round() as i64,
+                        rw.y + (c[1] - r[1]).round() as i64,
+                        rw.width,
+                        rw.height,
+                    ),
+                    None => Window::centred(c[0], c[1], half_w),
+                };
                 let clipped = win.clip(w, h).unwrap_or(Window::new(
                     win.x.clamp(0, w as i64 - 1),
                     win.y.clamp(0, h as i64 - 1),

@@ -207,3 +207,75 @@ fn no_flow_images_keep_every_dot_in_place() {
         assert_eq!(tr.stats.found, det.stats.found);
     }
 }
+
+/// A tracked dot's fit window is its reference window moved by the whole pixels of its
+/// displacement from the reference centre: in a no-flow image every dot keeps the reference's
+/// pixels (a window centred on its own rounded centre would differ for the dots near a pixel's
+/// edge), and under a uniform flow every window moves with its dot, never more than a pixel
+/// from the dot's centre per axis.
+#[test]
+fn tracked_windows_are_the_reference_windows_moved_by_whole_pixels() {
+    let c = case(8.0, 6.0, 7.0, 61);
+    let cfg_scene = scene_config(&c);
+    let reference = Scene::reference(&cfg_scene).unwrap();
+    let cfg = DetectConfig::default();
+    let det = detect(&reference.image, reference.mask.as_ref(), &cfg).unwrap();
+    let half = (det.seeds[0].window.width.max(det.seeds[0].window.height) / 2) as usize;
+    let side = 2 * half + 1;
+    let full = |s: &Seed| s.window.width == side && s.window.height == side;
+    let moved = |r: &Seed, d: [i64; 2]| {
+        bostrack_core::Window::new(
+            r.window.x + d[0],
+            r.window.y + d[1],
+            r.window.width,
+            r.window.height,
+        )
+    };
+    // no flow
+    let mut own_rule_differs = 0;
+    let mut checked = 0;
+    for img in bostrack_synth::stack(&cfg_scene, 2).unwrap() {
+        let tr = track(&img, reference.mask.as_ref(), &det, &cfg).unwrap();
+        for (t, r) in tr.seeds.iter().zip(&det.seeds) {
+            if !full(r) || !full(t) || t.flags.contains(DotFlags::MISSING) {
+                continue;
+            }
+            checked += 1;
+            assert_eq!(t.window, r.window, "{t:?} left the window of {r:?}");
+            let own = bostrack_core::Window::centred(t.centre[0], t.centre[1], half);
+            own_rule_differs += usize::from(own != r.window);
+        }
+    }
+    assert!(checked > 500, "{checked}");
+    // (the case the rule is for does occur)
+    assert!(own_rule_differs > 0, "{own_rule_differs} of {checked}");
+    // a uniform flow of (2.3, -1.6) px
+    let gradient = Scene::gradient(&cfg_scene, &uniform(2.3, -1.6)).unwrap();
+    let tr = track(&gradient.image, gradient.mask.as_ref(), &det, &cfg).unwrap();
+    let (mut shifted, mut n) = (0, 0);
+    for (t, r) in tr.seeds.iter().zip(&det.seeds) {
+        if !full(r) || !full(t) || t.flags.contains(DotFlags::MISSING) {
+            continue;
+        }
+        n += 1;
+        let d = [
+            (t.centre[0] - r.centre[0]).round() as i64,
+            (t.centre[1] - r.centre[1]).round() as i64,
+        ];
+        assert_eq!(t.window, moved(r, d), "{t:?} from {r:?}");
+        shifted += usize::from(d == [2, -2]);
+        let mid = |lo: i64| (lo + half as i64) as f64;
+        let off = (t.centre[0] - mid(t.window.x))
+            .abs()
+            .max((t.centre[1] - mid(t.window.y)).abs());
+        assert!(
+            off <= 1.0,
+            "{t:?}: centre {off} px from its window's centre"
+        );
+    }
+    // (nearly every dot moved by (2, -2) whole pixels: the rest lie near a pixel's edge)
+    assert!(
+        n > 250 && shifted as f64 > 0.8 * n as f64,
+        "{shifted} of {n}"
+    );
+}
