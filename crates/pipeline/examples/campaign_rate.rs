@@ -18,14 +18,15 @@
 //!    figures off): one gradient frame (`process_frame` + `write_frame`) on a 1-thread pool,
 //!    its CPU time (the pool thread's own run time from `/proc/thread-self/schedstat`,
 //!    nanoseconds) and its stage times, best of `--runs`; the fit stage's share and the
-//!    writing's own CPU apart.
+//!    writing's own CPU apart; then the CPU of the stages the issue lists alone
+//!    (`process_image` of the frame decoded beforehand, nothing written), best of `--runs`.
 //!
 //! CPU times do not grow with the machine's load the way wall times do (they still grow a
 //! little with cache contention): on the shared 2-core machine read the CPU columns.
 
 use bostrack_pipeline::{
-    BatchOptions, Plan, ReferenceContext, Silent, load_config, process_frame, run_batch,
-    write_frame,
+    BatchOptions, Plan, ReferenceContext, Silent, load_config, process_frame, process_image,
+    run_batch, write_frame,
 };
 use bostrack_synth::{DisplacementField, FlowConfig, Scene, SceneConfig, stack};
 use rayon::prelude::*;
@@ -214,6 +215,19 @@ fn main() -> Res<()> {
             }
         }
         let (cpu, stages, write_cpu) = best.expect("at least one run");
+        // the stages the issue lists alone (tracking, fits, matching, validation, uncertainty):
+        // `process_image` of the frame decoded beforehand, nothing written
+        let frame = &plan.gradients[0];
+        let (img, _) = bostrack_io::read_image_clipped(frame, plan.config.input.saturation)?;
+        let mut compute = f64::INFINITY;
+        for _ in 0..runs.max(2) {
+            let c = pool.install(|| -> Res<f64> {
+                let c0 = thread_cpu();
+                process_image(&ctx, &plan, &img, frame)?;
+                Ok(thread_cpu() - c0)
+            })?;
+            compute = compute.min(c);
+        }
         let wall = |k: &str| stages.iter().find(|s| s.0 == k).map_or(0.0, |s| s.1);
         let fit_share = wall("fit") / wall("total");
         println!(
@@ -229,6 +243,12 @@ fn main() -> Res<()> {
             .iter()
             .map(|(k, v)| format!("{k} {:.1}", 1e3 * v))
             .collect();
+        println!(
+            "the stages the issue lists alone (tracking, fits, matching, validation, uncertainty: \
+             `process_image` of the decoded frame, nothing written), best of {}: CPU {:.0} ms",
+            runs.max(2),
+            1e3 * compute
+        );
         println!("stage wall times (ms): {}", line.join(", "));
         println!(
             "writing the frame's files: {:.1} ms CPU of the frame's {:.0} (the rest of its wall \
