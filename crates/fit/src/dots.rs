@@ -1357,6 +1357,10 @@ impl<'a> Iteration<'a> {
                 std::mem::take(canvas_buf),
             )
         });
+        if canvas.is_some() {
+            // (the canvas's subtractions read them: found here, before the parallel loop)
+            hood.find_twins();
+        }
         let fkind = crate::eval::Kind::from_model(cfg.model);
         let items = seeds
             .par_iter()
@@ -1565,7 +1569,8 @@ struct Neighbourhood<'a> {
     index: NeighbourIndex,
     /// Which fits may model a neighbour (fixed from the first models).
     gate: Plausible,
-    /// The seeds found twice ([`Twins`]), found at the first canvas subtraction.
+    /// The seeds found twice ([`Twins`]), found before the first pass that subtracts from a
+    /// canvas ([`Neighbourhood::find_twins`]).
     twins: std::sync::OnceLock<Twins>,
 }
 
@@ -1585,9 +1590,22 @@ impl<'a> Neighbourhood<'a> {
         }
     }
 
-    /// The seeds closer than 1.5 px to seed `i` ([`same_seed`]).
+    /// Finds the seeds found twice ([`Twins`], in parallel) unless known: to be called before a
+    /// parallel pass that reads them ([`Neighbourhood::twins_of`]), never from inside one. (A
+    /// lazy parallel initialisation inside the pass deadlocked: a worker that initialises the
+    /// cell steals, while it waits for its own parallel part, a dot of the pass that waits for
+    /// the same cell.)
+    fn find_twins(&self) {
+        self.twins.get_or_init(|| Twins::of(self.seeds, true));
+    }
+
+    /// The seeds closer than 1.5 px to seed `i` ([`same_seed`]); found here, serially, when
+    /// [`Neighbourhood::find_twins`] was not called (a serial initialisation cannot steal work:
+    /// the other workers just wait for it).
     fn twins_of(&self, i: usize) -> &[(u32, u32)] {
-        self.twins.get_or_init(|| Twins::of(self.seeds)).with(i)
+        self.twins
+            .get_or_init(|| Twins::of(self.seeds, false))
+            .with(i)
     }
 
     /// Replaces dot `j`'s model by that of `fit` where the gate admits it (otherwise the dot
@@ -2780,40 +2798,50 @@ fn same_seed(a: &Seed, b: &Seed) -> bool {
 struct Twins(Vec<(u32, u32)>);
 
 impl Twins {
-    fn of(seeds: &[Seed]) -> Twins {
+    /// The pairs of `seeds`; `parallel`: blocks of seeds on rayon's pool (never from inside a
+    /// parallel region that may wait for the result, see [`Neighbourhood::find_twins`]).
+    fn of(seeds: &[Seed], parallel: bool) -> Twins {
         let finite = |s: &Seed| s.centre.iter().all(|v| v.is_finite());
         let index = NeighbourIndex::of_points(
             seeds
                 .iter()
                 .map(|s| finite(s).then_some((s.centre[0], s.centre[1], 1.5))),
         );
-        // (blocks of seeds in parallel, each into one list, joined in seed order)
-        let mut pairs: Vec<(u32, u32)> = seeds
-            .par_iter()
-            .enumerate()
-            .with_min_len(256)
-            .fold(
-                || (Vec::new(), Vec::new()),
-                |(mut near, mut pairs), (i, s)| {
-                    if finite(s) {
-                        // (a one-pixel window at the centre: the index looks 1.5 px beyond it)
-                        let [x, y] = s.centre.map(floor_i64);
-                        let win = Window::new(x, y, 1, 1);
-                        index.near_unsorted(win, &mut near);
-                        pairs.extend(
-                            near.iter()
-                                .filter(|&&j| j != i && same_seed(s, &seeds[j]))
-                                .map(|&j| (i as u32, j as u32)),
-                        );
-                    }
-                    (near, pairs)
-                },
-            )
-            .map(|(_, pairs)| pairs)
-            .reduce(Vec::new, |mut a, b| {
-                a.extend(b);
-                a
-            });
+        // the pairs of one seed, appended to `pairs`
+        let pairs_of = |(mut near, mut pairs): (Vec<usize>, Vec<(u32, u32)>),
+                        (i, s): (usize, &Seed)| {
+            if finite(s) {
+                // (a one-pixel window at the centre: the index looks 1.5 px beyond it)
+                let [x, y] = s.centre.map(floor_i64);
+                let win = Window::new(x, y, 1, 1);
+                index.near_unsorted(win, &mut near);
+                pairs.extend(
+                    near.iter()
+                        .filter(|&&j| j != i && same_seed(s, &seeds[j]))
+                        .map(|&j| (i as u32, j as u32)),
+                );
+            }
+            (near, pairs)
+        };
+        let mut pairs: Vec<(u32, u32)> = if parallel {
+            // (blocks of seeds in parallel, each into one list, joined)
+            seeds
+                .par_iter()
+                .enumerate()
+                .with_min_len(256)
+                .fold(|| (Vec::new(), Vec::new()), pairs_of)
+                .map(|(_, pairs)| pairs)
+                .reduce(Vec::new, |mut a, b| {
+                    a.extend(b);
+                    a
+                })
+        } else {
+            seeds
+                .iter()
+                .enumerate()
+                .fold((Vec::new(), Vec::new()), pairs_of)
+                .1
+        };
         pairs.sort_unstable();
         Twins(pairs)
     }

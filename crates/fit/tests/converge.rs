@@ -421,3 +421,38 @@ fn lattice_sites_beyond_the_image_edge_are_modelled_as_ghosts() {
         "{worst_with} vs {worst_without}"
     );
 }
+
+/// Many threads on few cores, many times: a pass never waits on itself. (The table of seeds
+/// found twice was once built lazily, in parallel, from inside the pass that reads it: a worker
+/// building it could steal, while waiting for its own parallel part, a dot of that pass that
+/// waited for the same table; `bostrack run --jobs 16` hung.) A watchdog fails the test
+/// instead of letting it hang.
+#[test]
+fn many_threads_never_deadlock() {
+    let size = 448;
+    let (v, truth) = common::lattice(7.0, 1.6, 20.0, size);
+    let img = Image::new(size, size, v, ImageMeta::default()).unwrap();
+    let seeds = common::seeds_of(&truth);
+    let nm = NoiseModel::read(10.0);
+    let runs = 60;
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(16)
+            .build()
+            .unwrap();
+        for k in 0..runs {
+            let fits = pool.install(|| fit_dots(&img, None, &seeds, &FitConfig::default(), &nm));
+            assert!(fits.is_ok(), "run {k}: {fits:?}");
+            tx.send(k).unwrap();
+        }
+    });
+    for k in 0..runs {
+        let got = rx.recv_timeout(std::time::Duration::from_secs(60));
+        assert_eq!(
+            got,
+            Ok(k),
+            "run {k} of {runs} did not finish within 60 s: deadlocked"
+        );
+    }
+}

@@ -40,8 +40,14 @@ impl PointSet {
         if pts.is_empty() {
             return PointSet { kind: Kind::Empty };
         }
-        // `new_from_slice` fails only when the item count overflows u32, excluded above
-        match ImmutableKdTree::<f64, 2>::new_from_slice(&pts) {
+        // built serially (what kiddo does below 262,144 points anyway): the validation builds
+        // its index lazily inside a parallel loop, where a parallel build could steal, while it
+        // waits, a dot of that loop that waits for the same index (a deadlock); fails only when
+        // the item count overflows u32, excluded above
+        match ImmutableKdTree::<f64, 2>::builder()
+            .with_serial_construction()
+            .build_from_slice(&pts)
+        {
             Ok(tree) => PointSet {
                 kind: Kind::Tree { tree, back: ids },
             },
