@@ -183,6 +183,7 @@ fn fit_dots_inner(
         hood,
         &mut canvas_buf,
         Some(colour),
+        None,
     ))
 }
 
@@ -240,6 +241,9 @@ pub struct FitMemory {
     looked: Vec<Option<Looked>>,
     /// The iteration's [`Links`] as it ended (`None` for fits without a neighbour iteration).
     links: Option<LinkMemory>,
+    /// The neighbour iteration linearised at these fits ([`FitMemory::with_map`]), for the
+    /// parts of a gradient frame that did not move.
+    map: Option<std::sync::Arc<crate::coupling::Coupling>>,
 }
 
 impl FitMemory {
@@ -255,6 +259,7 @@ impl FitMemory {
                 .map(|i| i.looked.as_ref().and_then(|k| k.resolve(steps)).cloned())
                 .collect(),
             links: None,
+            map: None,
         }
     }
 
@@ -279,9 +284,54 @@ impl FitMemory {
                 .iter()
                 .map(|l| l.as_ref().map(|l| l.scaled(1.0 / ratio)))
                 .collect(),
-            // (the shares are the models' geometry, not their noise)
+            // (the shares are the models' geometry, not their noise; the map is made with a
+            // frame's noise)
             links: self.links.clone(),
+            map: self.map.clone(),
         }
+    }
+
+    /// This memory with the linear coupling map of `tails` ([`NeighbourTails::coupled`], made
+    /// from these fits, moved by at most a common shift, with a frame's noise model), or
+    /// without a map where `tails` has none. [`refit_dots_remembered`] then solves the parts
+    /// of a gradient frame that did not move on the map instead of refitting their dots in
+    /// every pass (see there).
+    pub fn with_map(mut self, tails: &NeighbourTails) -> FitMemory {
+        self.map = tails.coupling.clone();
+        self
+    }
+
+    /// This memory with the linear coupling map of `prior` (the fits it remembers, or those
+    /// moved by a common shift) made for `img` (an image of the scene, for which pixels a fit
+    /// may use) with the noise model of a frame: [`NeighbourTails::coupled`]'s map without its
+    /// tails (see [`FitMemory::with_map`]). Without neighbour subtraction or least squares, or
+    /// for `prior` of another length than `seeds`, the memory is returned without a map.
+    pub fn linearised(
+        self,
+        prior: &[DotFit],
+        seeds: &[Seed],
+        cfg: &FitConfig,
+        img: &Image,
+        mask: Option<&Mask>,
+        noise: &NoiseModel,
+    ) -> FitMemory {
+        let mut m = self;
+        m.map = None;
+        if prior.len() == seeds.len()
+            && cfg.neighbours == Neighbours::Subtract
+            && cfg.estimator == Estimator::Lsg
+        {
+            let hood = Neighbourhood::new(prior, seeds, cfg.sampling);
+            m.map = Some(std::sync::Arc::new(coupling_map(
+                &hood, prior, cfg, img, mask, noise,
+            )));
+        }
+        m
+    }
+
+    /// Whether the memory holds a linear coupling map.
+    pub fn has_map(&self) -> bool {
+        self.map.is_some()
     }
 }
 
@@ -347,8 +397,13 @@ pub fn refit_dots_remembered(
         // with a linear coupling map: the neighbours of every window (tails or not) as the map
         // is linearised at
         let coupling = tails
-            .and_then(|t| t.coupling.as_ref())
+            .and_then(|t| t.coupling.as_deref())
             .filter(|c| c.fits.len() == seeds.len() && cfg.neighbour_passes > 1);
+        // a gradient frame with the reference's map: the dots that did not move are solved on
+        // it after the first pass (see `Iteration::converge`)
+        let frame_map = memory.and_then(|m| m.map.as_deref()).filter(|c| {
+            coupling.is_none() && c.fits.len() == seeds.len() && cfg.neighbour_passes > 1
+        });
         it.first_steps = match (coupling, memory) {
             (Some(c), _) => Some(c.looked.as_slice()),
             (None, Some(m)) => Some(m.looked.as_slice()),
@@ -401,8 +456,15 @@ pub fn refit_dots_remembered(
         }
         hood.update(&first, cfg.sampling);
         let first_steps = first.iter().filter(|i| i.stepped).count();
-        let (fits, mut report, _) =
-            it.converge(first, vec![fitted(seeds)], hood, &mut canvas_buf, None);
+        let hybrid = frame_map.map(|map| Hybrid::Start { map, prior });
+        let (fits, mut report, _) = it.converge(
+            first,
+            vec![fitted(seeds)],
+            hood,
+            &mut canvas_buf,
+            None,
+            hybrid,
+        );
         report.linear_steps += first_steps;
         return Ok((fits, report));
     }
@@ -1062,6 +1124,9 @@ impl<'a> Iteration<'a> {
     /// flags (`UNCONVERGED`, `RESIDUAL`).
     /// `halves`: the last pass refitted the dots marked `true` first and then the others with
     /// those new fits subtracted (red-black), so the others already saw the first half's moves.
+    /// `hybrid`: a gradient frame's first pass with the reference's linear coupling map: the
+    /// dots that did not move, and whose neighbours did not either, are solved on the map
+    /// instead of being refitted (see [`Hybrid`]); the passes refit the others.
     fn converge(
         &self,
         mut items: Vec<Item>,
@@ -1069,6 +1134,7 @@ impl<'a> Iteration<'a> {
         mut hood: Neighbourhood,
         canvas_buf: &mut Vec<f64>,
         mut halves: Option<Vec<bool>>,
+        hybrid: Option<Hybrid>,
     ) -> (Vec<DotFit>, PassReport, FitMemory) {
         let tol = self.cfg.neighbour_tolerance;
         // dots whose refit moved them no less than the one before, for the third time (not
@@ -1086,6 +1152,19 @@ impl<'a> Iteration<'a> {
             Some(m) if m.fits(self.seeds) => Links::carried(m, self.seeds, &hood, &mut near),
             _ => Links::new(self.seeds, &hood),
         };
+        // (only where the passes would refit much of the image: on a target whose dots barely
+        // overlap they have little to do, and the map's set-up would cost more than it saves)
+        let hybrid = hybrid.filter(|_| {
+            let pulls = self.neighbour_pull(&items, &links, None);
+            let owing = pulls.iter().filter(|&&p| p > tol).count();
+            owing as f64 >= CANVAS_FRACTION * self.seeds.len() as f64
+        });
+        let mut hybrid = hybrid.and_then(|h| self.linear_part(h, &items, &hood, &links));
+        if let Some(h) = hybrid.as_mut() {
+            self.take_linear(
+                h, &mut items, &mut fits, &mut hood, &mut links, &mut near, true,
+            );
+        }
         loop {
             let passes = refits.len() as u32;
             // the pull owed since each dot was last fitted or checked (small pulls add up)
@@ -1105,6 +1184,14 @@ impl<'a> Iteration<'a> {
             };
             for (o, p) in owed.iter_mut().zip(&now) {
                 *o += p;
+            }
+            if let Some(h) = &hybrid {
+                // (the map answers for the linear dots)
+                for (o, &l) in owed.iter_mut().zip(&h.state.live) {
+                    if l {
+                        *o = 0.0;
+                    }
+                }
             }
             let mut select: Vec<bool> = owed
                 .iter()
@@ -1129,6 +1216,31 @@ impl<'a> Iteration<'a> {
                     count = n_mine;
                 }
             }
+            if count == 0
+                && let Some(h) = hybrid.as_mut()
+                && h.rounds < HYBRID_ROUNDS
+            {
+                // the pixel dots settled: the linear dots again, with the pixel dots' fits now
+                h.rounds += 1;
+                for (i, f) in fits.iter().enumerate() {
+                    if h.since[i] && hood.gate.admits(f) {
+                        h.held[i] = *f;
+                    }
+                }
+                let again = h.map.frame_again(&mut h.state, &h.held, &h.since);
+                h.since.iter_mut().for_each(|s| *s = false);
+                if again.is_some() {
+                    let moved = self.take_linear(
+                        h, &mut items, &mut fits, &mut hood, &mut links, &mut near, false,
+                    );
+                    if moved > tol {
+                        continue;
+                    }
+                } else {
+                    // (sweeps that did not settle: the linear dots keep the last solution)
+                    h.rounds = HYBRID_ROUNDS;
+                }
+            }
             if count == 0 || passes >= self.cfg.neighbour_passes {
                 let mut unconverged = 0;
                 let limit = UNCONVERGED_FACTOR * tol;
@@ -1147,7 +1259,7 @@ impl<'a> Iteration<'a> {
                     refits,
                     converged: count == 0 && unconverged == 0,
                     unconverged,
-                    linear_sweeps: 0,
+                    linear_sweeps: hybrid.as_ref().map_or(0, |h| h.state.sweeps),
                     linear_steps,
                 };
                 let mut memory = FitMemory::of(&items, self.remember, self.first_steps);
@@ -1175,19 +1287,23 @@ impl<'a> Iteration<'a> {
             let changed = next.iter().enumerate().filter(|(_, n)| n.is_some());
             links.relink(self.seeds, &hood, changed.map(|(j, _)| j), &mut near, None);
             let mut refitted = 0;
-            for (((((it, n), k), last), o), &sel) in items
+            for (j, (((((it, n), k), last), o), &sel)) in items
                 .iter_mut()
                 .zip(next)
                 .zip(&mut strikes)
                 .zip(&mut last_move)
                 .zip(&mut owed)
                 .zip(&select)
+                .enumerate()
             {
                 if sel {
                     *o = 0.0;
                 }
                 match n {
                     Some(n) => {
+                        if let Some(h) = hybrid.as_mut() {
+                            h.since[j] = true;
+                        }
                         linear_steps += usize::from(n.stepped);
                         // (from pass 4 on: passes 1-3 start from the moments and loose fits)
                         if passes >= 3 && n.moved > tol && n.moved >= *last {
@@ -1203,6 +1319,132 @@ impl<'a> Iteration<'a> {
             }
             refits.push(refitted);
         }
+    }
+
+    /// The linear part of a gradient frame ([`Hybrid`]) from its first pass (`items`, whose
+    /// neighbour models and links are `hood` and `links`), solved on the map; `None` where no
+    /// dot is linear or the map does not settle (then every dot is refitted by the passes).
+    fn linear_part<'m>(
+        &self,
+        start: Hybrid<'m>,
+        items: &[Item],
+        hood: &Neighbourhood,
+        links: &Links,
+    ) -> Option<Running<'m>> {
+        let Hybrid::Start { map, prior } = start;
+        let n = self.seeds.len();
+        let (w, h) = (self.img.width(), self.img.height());
+        let first: Vec<DotFit> = items.iter().map(|i| i.fit).collect();
+        // the frame's common shift from the base: the median move of the coupled dots
+        let shift = crate::coupling::median2(
+            (0..n)
+                .filter(|&i| map.window(i).is_some() && first[i].status.is_ok())
+                .map(|i| {
+                    let (f, b) = (&first[i].params, &map.fits[i].params);
+                    [f.x0 - b.x0, f.y0 - b.y0]
+                }),
+        )?;
+        let usable = |f: &DotFit| {
+            f.status.is_ok()
+                && !f
+                    .flags
+                    .intersects(DotFlags::AT_BOUND | DotFlags::SHAPE_FIXED)
+                && f.params.is_valid()
+                && f.params.amplitude > 0.0
+                && hood.gate.admits(f)
+        };
+        // near: fitted over the map's window, it and its prior within the map's linear reach
+        let near: Vec<bool> = (0..n)
+            .into_par_iter()
+            .with_min_len(256)
+            .map(|i| {
+                let f = &first[i];
+                usable(f)
+                    && prior[i].status.is_ok()
+                    && map.window(i).is_some()
+                    && map.window(i) == self.seeds[i].window.clip(w, h)
+                    && map.near(i, &f.params, shift)
+                    && map.near(i, &prior[i].params, shift)
+            })
+            .collect();
+        // linear: near, with every neighbour (touching, or linked by the map) near too
+        let linear: Vec<bool> = (0..n)
+            .into_par_iter()
+            .with_min_len(256)
+            .map(|i| {
+                near[i]
+                    && links.row(i).iter().all(|&(j, _)| near[j as usize])
+                    && map.neighbours(i).iter().all(|&j| near[j as usize])
+            })
+            .collect();
+        if !linear.iter().any(|&l| l) {
+            return None;
+        }
+        // the other dots held at their current models (a fit the gate refused: its prior's)
+        let held: Vec<DotFit> = (0..n)
+            .map(|i| {
+                if usable(&first[i]) {
+                    first[i]
+                } else {
+                    prior[i]
+                }
+            })
+            .collect();
+        let state = map.frame_start(&first, prior, linear, &held)?;
+        Some(Running {
+            map,
+            state,
+            held,
+            since: vec![false; n],
+            rounds: 0,
+        })
+    }
+
+    /// Writes the linear dots' solution, where it changed since last written, into `items`,
+    /// `fits`, `hood` and `links`; the largest move it made (standard deviations). `first`:
+    /// the first time (each linear dot's move then adds its first pass's, which its neighbours
+    /// have not seen yet; otherwise the other dots' moves are set to 0: their pulls were
+    /// counted).
+    #[allow(clippy::too_many_arguments)]
+    fn take_linear(
+        &self,
+        h: &mut Running,
+        items: &mut [Item],
+        fits: &mut [DotFit],
+        hood: &mut Neighbourhood,
+        links: &mut Links,
+        near: &mut Vec<usize>,
+        first: bool,
+    ) -> f64 {
+        let taken = h.map.frame_take(&mut h.state);
+        let mut updates: Vec<Option<Box<Item>>> = vec![None; items.len()];
+        let mut most = 0.0f64;
+        for (i, params, by) in taken {
+            let it = &items[i];
+            let mut next = Item {
+                fit: it.fit,
+                chi2: it.chi2,
+                dof: it.dof,
+                moved: if first { it.moved + by } else { by },
+                looked: it.looked.clone(),
+                stepped: it.stepped,
+                rho_held: it.rho_held,
+            };
+            next.fit.params = params;
+            most = most.max(next.moved);
+            updates[i] = Some(Box::new(next));
+        }
+        hood.apply(&updates, fits, self.cfg.sampling);
+        let changed = updates.iter().enumerate().filter(|(_, u)| u.is_some());
+        links.relink(self.seeds, hood, changed.map(|(j, _)| j), near, None);
+        for (it, u) in items.iter_mut().zip(updates) {
+            match u {
+                Some(u) => *it = *u,
+                None if !first => it.moved = 0.0,
+                None => {}
+            }
+        }
+        most
     }
 
     /// The final records: the joint bound where neighbours overlap the window (see
@@ -1493,6 +1735,43 @@ impl<'a> Iteration<'a> {
         }
         items
     }
+}
+
+/// How often a gradient frame's linear dots are solved again after the pixel dots settled
+/// (each round the pixel dots next to them may owe pulls to their new solution).
+const HYBRID_ROUNDS: u32 = 4;
+
+/// The linear part of a gradient frame's neighbour iteration, before it starts: the
+/// reference's linear coupling map ([`FitMemory::with_map`]) and the frame's prior (the
+/// reference fits each moved by its tracked displacement).
+///
+/// A gradient frame differs from its reference by noise and a small common shift outside the
+/// flow region; there the joint solution lies within the map's linear reach of the reference
+/// fits, as a no-flow image's does, and the map gives it without refitting dots. After the
+/// first pass every dot that was fitted over the map's window and lies, as its prior does,
+/// within [`crate::coupling::Coupling::near`] of its base moved by the frame's common shift is
+/// near; a near dot whose neighbours (touching its window, or linked by the map) are all near
+/// is linear: solved on the map, with the other dots held at their current fits. The others
+/// (the flow region, a ring of dots around it, dots whose fit or shape changed) are refitted
+/// by the passes, with the linear dots' solution subtracted; when they settle the linear dots
+/// are solved again with them held at their new fits, and the passes go on where those moves
+/// pull, up to [`HYBRID_ROUNDS`] times.
+enum Hybrid<'m> {
+    Start {
+        map: &'m crate::coupling::Coupling,
+        prior: &'m [DotFit],
+    },
+}
+
+/// A gradient frame's linear part while the iteration runs ([`Hybrid`]).
+struct Running<'m> {
+    map: &'m crate::coupling::Coupling,
+    state: crate::coupling::FrameState,
+    /// Per dot, the fit the map holds it at where it is not linear.
+    held: Vec<DotFit>,
+    /// The dots refitted since the linear dots were last solved.
+    since: Vec<bool>,
+    rounds: u32,
 }
 
 /// The records of the last pass with the χ² test applied (`RESIDUAL`). The noise model is
@@ -2305,7 +2584,7 @@ pub struct NeighbourTails {
     values: Vec<f64>,
     count: Vec<u32>,
     /// The linearised neighbour iteration ([`NeighbourTails::coupled`]).
-    coupling: Option<crate::coupling::Coupling>,
+    coupling: Option<std::sync::Arc<crate::coupling::Coupling>>,
 }
 
 impl NeighbourTails {
@@ -2411,7 +2690,9 @@ impl NeighbourTails {
             && cfg.neighbours == Neighbours::Subtract
             && cfg.estimator == Estimator::Lsg
         {
-            tails.coupling = Some(coupling_map(&hood, prior, cfg, img, mask, noise));
+            tails.coupling = Some(std::sync::Arc::new(coupling_map(
+                &hood, prior, cfg, img, mask, noise,
+            )));
         }
         tails
     }
@@ -2517,6 +2798,7 @@ fn coupling_map(
         seeds.iter().map(is_red).collect(),
         links,
         looked,
+        seeds.iter().map(|s| s.window.clip(w, h)).collect(),
     )
 }
 

@@ -4,11 +4,14 @@
 //!
 //! `RAYON_NUM_THREADS=1 cargo run --release -p bostrack-pipeline --example converge -- [--runs N]`
 //! (`BT_TOL=0.05` sets `[fit] neighbour_tolerance` for the converged runs; `--stack-only`: the
-//! no-flow stack's linearised iteration against the pixel iteration, then stop).
+//! no-flow stack's linearised iteration against the pixel iteration, then stop; `--frame-only`:
+//! the gradient frame's iteration with the reference's linear coupling map for its no-flow part
+//! against the pixel iteration alone and a deep one, then stop).
 
 use bostrack_core::{DotFit, DotFlags, Image, Mask, NoiseModel, Seed};
 use bostrack_fit::{
-    FitConfig, NeighbourTails, PassReport, estimate_noise, fit_dots_report, refit_dots_report,
+    FitConfig, FitMemory, NeighbourTails, PassReport, estimate_noise, fit_dots_remembered,
+    fit_dots_report, refit_dots_remembered, refit_dots_report,
 };
 use bostrack_io::{bos_sample_dir, read_image, read_mask_for};
 use std::time::Instant;
@@ -109,6 +112,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     // the no-flow stack: refits from the reference's fits, one pass (earlier versions) against
     // the converged iteration
     let (ref_fits, _) = fit_dots_report(&reference, Some(&mask), &det.seeds, &cfg, &noise)?;
+    if std::env::args().any(|a| a == "--frame-only") {
+        return frame_only(
+            &reference, &gradient, &mask, &det, &tracked, &cfg, &noise, runs,
+        );
+    }
     let tails = NeighbourTails::new(&ref_fits, &det.seeds, &cfg, w, h);
     let one = FitConfig {
         neighbour_passes: 1,
@@ -361,6 +369,119 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             );
             summary("passes 2 and 3, all", &moves(&f2, &f3, |_| true));
         }
+    }
+    Ok(())
+}
+
+/// The gradient frame from the reference's fits (as the pipeline fits it): with the reference's
+/// linear coupling map for its no-flow part, by the pixel iteration alone, and by a deep pixel
+/// iteration; positions compared in units of the deep fit's bound, inside and outside the flow.
+#[allow(clippy::too_many_arguments)]
+fn frame_only(
+    reference: &Image,
+    gradient: &Image,
+    mask: &Mask,
+    det: &bostrack_detect::Detection,
+    tracked: &bostrack_detect::Detection,
+    cfg: &FitConfig,
+    noise: &NoiseModel,
+    runs: usize,
+) -> Result<(), Box<dyn std::error::Error>> {
+    let (ref_fits, _, memory) = fit_dots_remembered(reference, Some(mask), &det.seeds, cfg, noise)?;
+    let t = Instant::now();
+    let with_map: FitMemory =
+        memory
+            .clone()
+            .linearised(&ref_fits, &det.seeds, cfg, reference, Some(mask), noise);
+    println!(
+        "coupling map of the reference: {:.1} ms",
+        t.elapsed().as_secs_f64() * 1e3
+    );
+    // the reference fits each moved by its tracked displacement (as the pipeline's prior)
+    let prior: Vec<DotFit> = ref_fits
+        .iter()
+        .zip(det.seeds.iter().zip(&tracked.seeds))
+        .map(|(f, (r, g))| {
+            let mut p = *f;
+            p.params.x0 += g.centre[0] - r.centre[0];
+            p.params.y0 += g.centre[1] - r.centre[1];
+            p
+        })
+        .collect();
+    let fit = |c: &FitConfig, m: &FitMemory| {
+        refit_dots_remembered(
+            gradient,
+            Some(mask),
+            &tracked.seeds,
+            c,
+            noise,
+            &prior,
+            None,
+            Some(m),
+        )
+    };
+    let (mut th, mut tp) = (f64::INFINITY, f64::INFINITY);
+    let (mut fh, mut fp) = (Vec::new(), Vec::new());
+    let (mut rh, mut rp) = (PassReport::default(), PassReport::default());
+    for _ in 0..runs {
+        let t = Instant::now();
+        (fh, rh) = fit(cfg, &with_map)?;
+        th = th.min(t.elapsed().as_secs_f64() * 1e3);
+        let t = Instant::now();
+        (fp, rp) = fit(cfg, &memory)?;
+        tp = tp.min(t.elapsed().as_secs_f64() * 1e3);
+    }
+    let deep = FitConfig {
+        neighbour_tolerance: 0.005,
+        neighbour_passes: 60,
+        ..cfg.clone()
+    };
+    let (fd, rd) = fit(&deep, &memory)?;
+    println!(
+        "gradient frame, best of {runs}: with the map {th:.2} ms, pixel iteration {tp:.2} ms, ratio {:.3}",
+        th / tp
+    );
+    println!(
+        "  with the map: passes {} refits {:?} sweeps {} unconverged {}",
+        rh.passes, rh.refits, rh.linear_sweeps, rh.unconverged
+    );
+    println!(
+        "  pixel iteration: passes {} refits {:?} unconverged {}",
+        rp.passes, rp.refits, rp.unconverged
+    );
+    println!(
+        "  deep: passes {} unconverged {}",
+        rd.passes, rd.unconverged
+    );
+    summary("map vs deep, flow", &moves(&fh, &fd, in_flow));
+    summary("map vs deep, rest", &moves(&fh, &fd, |f| !in_flow(f)));
+    summary("pixel vs deep, flow", &moves(&fp, &fd, in_flow));
+    summary("pixel vs deep, rest", &moves(&fp, &fd, |f| !in_flow(f)));
+    summary("map vs pixel, all", &moves(&fh, &fp, |_| true));
+    // the bounds and the flags
+    let ratio: Vec<f64> = {
+        let mut r: Vec<f64> = fh
+            .iter()
+            .zip(&fp)
+            .filter(|(a, b)| a.status.is_ok() && b.status.is_ok() && b.crlb_x > 0.0)
+            .map(|(a, b)| (a.crlb_x / b.crlb_x - 1.0).abs())
+            .collect();
+        r.sort_by(f64::total_cmp);
+        r
+    };
+    summary("|bound x map / pixel - 1|", &ratio);
+    for flag in [
+        DotFlags::RESIDUAL,
+        DotFlags::UNCONVERGED,
+        DotFlags::FIT_FAILED,
+    ] {
+        let count = |f: &[DotFit]| f.iter().filter(|d| d.flags.contains(flag)).count();
+        println!(
+            "  {flag:?}: map {} pixel {} deep {}",
+            count(&fh),
+            count(&fp),
+            count(&fd)
+        );
     }
     Ok(())
 }

@@ -19,6 +19,12 @@ use std::path::{Path, PathBuf};
 /// Fewest stack images for a per-dot u_ref (`bostrack_uncertainty::StackConfig::min_images`).
 const MIN_STACK_IMAGES: usize = 3;
 
+/// Gradient frames from which a campaign without a no-flow stack builds the reference's linear
+/// coupling map for the frames' no-flow parts ([`bostrack_fit::FitMemory::linearised`]): it
+/// costs about as much as it saves on 9 frames of the real sample (with a stack the map is made
+/// for the stack's images and shared, at no cost).
+const MAP_MIN_FRAMES: usize = 10;
+
 /// Everything computed once per campaign: reference image + mask, its detection and fits, the
 /// noise model (from the stack when given, else from the reference image), the no-flow stack's
 /// per-dot scatter (u_ref, K) when a stack is configured and the outputs need it.
@@ -431,6 +437,20 @@ impl ReferenceContext {
             ctx.fit_stack(plan, &stack)?;
             None
         };
+        // without the stack's map: the reference's own, where enough frames follow to repay it
+        // (~90 ms once on the real sample, ~10 ms less per frame)
+        if !ctx.memory.has_map() && plan.gradients.len() >= MAP_MIN_FRAMES {
+            let mut sw = Stopwatch::start();
+            ctx.memory = std::mem::take(&mut ctx.memory).linearised(
+                &ctx.fits,
+                &ctx.detection.seeds,
+                &plan.fit,
+                &reference,
+                ctx.mask.as_ref(),
+                &ctx.noise,
+            );
+            ctx.times.push("coupling_map", sw.lap());
+        }
         Ok(ctx)
     }
 
@@ -515,6 +535,8 @@ impl ReferenceContext {
                     .collect::<Vec<DotFit>>())
             })
             .collect::<Result<Vec<_>, PipelineError>>()?;
+        // the frames solve their no-flow parts on the same map (see `FitMemory::with_map`)
+        self.memory = std::mem::take(&mut self.memory).with_map(&tails);
         self.times.push("stack_fit", sw.lap());
         let common_mode = if plan.uncertainty.common_mode {
             CommonMode::default()
@@ -559,7 +581,7 @@ impl ReferenceContext {
     }
 
     /// Reference-side stage wall times (s): `stack_decode`, `decode`, `noise`, `detect`,
-    /// `fit`, `stack_fit`, `stack_scatter` (those that ran).
+    /// `fit`, `stack_fit`, `stack_scatter`, `coupling_map` (those that ran).
     pub fn timings(&self) -> &StageTimes {
         &self.times
     }
