@@ -402,7 +402,10 @@ pub fn refit_dots_remembered(
         // a gradient frame with the reference's map: the dots that did not move are solved on
         // it after the first pass (see `Iteration::converge`)
         let frame_map = memory.and_then(|m| m.map.as_deref()).filter(|c| {
-            coupling.is_none() && c.fits.len() == seeds.len() && cfg.neighbour_passes > 1
+            cfg.frame_map
+                && coupling.is_none()
+                && c.fits.len() == seeds.len()
+                && cfg.neighbour_passes > 1
         });
         it.first_steps = match (coupling, memory) {
             (Some(c), _) => Some(c.looked.as_slice()),

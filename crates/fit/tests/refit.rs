@@ -300,10 +300,14 @@ fn flowing(
 /// rest moved by a common 0.02 px) are solved on the map, the flow and a ring around it by the
 /// passes. Every dot ends where a full refit with its neighbours at the result leaves it (the
 /// joint solution, inside the flow and out), within a fifth of a bound of the pixel iteration
-/// alone, with fewer refits; a map of other seeds is not used.
+/// alone, with fewer refits; a map of other seeds is not used, nor any map with `frame_map`
+/// off (the default).
 #[test]
 fn a_frame_solves_its_still_part_on_the_reference_map() {
-    let cfg = FitConfig::default();
+    let cfg = FitConfig {
+        frame_map: true,
+        ..FitConfig::default()
+    };
     let noise = NoiseModel::read(10.0);
     let n = 16;
     let (reference, seeds, _) = flowing(n, |_, _| [0.0, 0.0], 1);
@@ -347,6 +351,20 @@ fn a_frame_solves_its_still_part_on_the_reference_map() {
     };
     let (mapped, rm) = fit(&with_map);
     let (plain, rp) = fit(&memory);
+    // (off by default: the memory's map is then left aside)
+    let (off, ro) = bostrack_fit::refit_dots_remembered(
+        &img,
+        None,
+        &seeds2,
+        &FitConfig::default(),
+        &noise,
+        &prior,
+        None,
+        Some(&with_map),
+    )
+    .unwrap();
+    assert_eq!(ro, rp);
+    assert!(worst_in_bounds(&off, &plain) == 0.0);
     println!("with the map {rm:?}\npixel iteration {rp:?}");
     assert!(rm.linear_sweeps > 0 && rm.converged, "{rm:?}");
     assert_eq!(rp.linear_sweeps, 0);

@@ -439,7 +439,7 @@ impl ReferenceContext {
         };
         // without the stack's map: the reference's own, where enough frames follow to repay it
         // (~90 ms once on the real sample, ~10 ms less per frame)
-        if !ctx.memory.has_map() && plan.gradients.len() >= MAP_MIN_FRAMES {
+        if plan.fit.frame_map && !ctx.memory.has_map() && plan.gradients.len() >= MAP_MIN_FRAMES {
             let mut sw = Stopwatch::start();
             ctx.memory = std::mem::take(&mut ctx.memory).linearised(
                 &ctx.fits,
@@ -535,8 +535,11 @@ impl ReferenceContext {
                     .collect::<Vec<DotFit>>())
             })
             .collect::<Result<Vec<_>, PipelineError>>()?;
-        // the frames solve their no-flow parts on the same map (see `FitMemory::with_map`)
-        self.memory = std::mem::take(&mut self.memory).with_map(&tails);
+        // with `[fit] frame_map`: the frames solve their no-flow parts on the same map (see
+        // `FitMemory::with_map`)
+        if plan.fit.frame_map {
+            self.memory = std::mem::take(&mut self.memory).with_map(&tails);
+        }
         self.times.push("stack_fit", sw.lap());
         let common_mode = if plan.uncertainty.common_mode {
             CommonMode::default()
