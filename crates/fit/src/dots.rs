@@ -459,7 +459,7 @@ pub fn refit_dots_remembered(
         }
         hood.update(&first, cfg.sampling);
         let first_steps = first.iter().filter(|i| i.stepped).count();
-        let hybrid = frame_map.map(|map| Hybrid::Start { map, prior });
+        let hybrid = frame_map.map(|map| Hybrid { map, prior });
         let (fits, mut report, _) = it.converge(
             first,
             vec![fitted(seeds)],
@@ -1334,7 +1334,7 @@ impl<'a> Iteration<'a> {
         hood: &Neighbourhood,
         links: &Links,
     ) -> Option<Running<'m>> {
-        let Hybrid::Start { map, prior } = start;
+        let Hybrid { map, prior } = start;
         let n = self.seeds.len();
         let (w, h) = (self.img.width(), self.img.height());
         let first: Vec<DotFit> = items.iter().map(|i| i.fit).collect();
@@ -1759,11 +1759,9 @@ const HYBRID_ROUNDS: u32 = 4;
 /// by the passes, with the linear dots' solution subtracted; when they settle the linear dots
 /// are solved again with them held at their new fits, and the passes go on where those moves
 /// pull, up to [`HYBRID_ROUNDS`] times.
-enum Hybrid<'m> {
-    Start {
-        map: &'m crate::coupling::Coupling,
-        prior: &'m [DotFit],
-    },
+struct Hybrid<'m> {
+    map: &'m crate::coupling::Coupling,
+    prior: &'m [DotFit],
 }
 
 /// A gradient frame's linear part while the iteration runs ([`Hybrid`]).
