@@ -131,7 +131,7 @@ pub enum Neighbours {
 /// neighbour_passes = 40     # at most this many neighbour passes (1 to 100)
 /// neighbour_tolerance = 0.1 # a dot is converged with its neighbours below this (bound units)
 /// ghosts = true             # model the lattice sites just outside the image as neighbours
-/// frame_map = false         # solve a gradient frame's still part on the reference's linear map
+/// frame_map = true          # solve a gradient frame's still part on the reference's linear map
 /// residual_false_alarm = 1e-6 # χ² test of each window's residual ("residual" flag); 0: off
 /// bound = true              # compute the per-dot Cramér-Rao bound (crlb_x, crlb_y)
 /// ```
@@ -194,14 +194,16 @@ pub struct FitConfig {
     /// With `neighbours = "subtract"` and least squares: solve the still part of a gradient
     /// frame (dots that, like their neighbours, lie within 5 % of σ of the reference fits
     /// after the frame's common shift) on the reference's linear coupling map instead of
-    /// refitting them in every pass (default false). The pipeline then shares the no-flow
+    /// refitting them in every pass (default true). The pipeline then shares the no-flow
     /// stack's map with the frames, or (without a stack, for 10 frames or more) makes the
     /// reference's own. On the real sample the frame's fit stage takes ~20 % less CPU and its
     /// positions lie as far from the deep joint solution as the passes' do (median 0.030
-    /// against 0.029 of the bound, 99th percentile 0.16 against 0.14); on a crowded synthetic
-    /// campaign (σ 1.6 px, spacing 7 px, 10 frames of a bump) the displacement's rms error
-    /// against the truth is 0.26 % larger than the passes', in the still dots: off until that
-    /// is understood.
+    /// against 0.029 of the bound, 99th percentile 0.16 against 0.14). On a crowded synthetic
+    /// campaign (σ 1.6 px, spacing 7 px, 10 frames of a bump) the map lands on the deep joint
+    /// solution (displacement rms error within 0.07 % of it) where the passes, stopped at
+    /// their tolerance a little short of it on the side of their prior (the reference's fit,
+    /// an independent measurement of a still dot), come out 0.2-0.3 % lower; `false` keeps the
+    /// passes.
     pub frame_map: bool,
     /// False-alarm rate of the per-dot χ² test of the window residual (default 1e-6; 0 turns the
     /// test off; checked at 0.01 on synthetic images, test
@@ -230,7 +232,7 @@ impl Default for FitConfig {
             neighbour_passes: 40,
             neighbour_tolerance: 0.1,
             ghosts: true,
-            frame_map: false,
+            frame_map: true,
             residual_false_alarm: 1e-6,
             bound: true,
         }

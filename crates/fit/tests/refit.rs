@@ -301,7 +301,7 @@ fn flowing(
 /// passes. Every dot ends where a full refit with its neighbours at the result leaves it (the
 /// joint solution, inside the flow and out), within a fifth of a bound of the pixel iteration
 /// alone, with fewer refits; a map of other seeds is not used, nor any map with `frame_map`
-/// off (the default).
+/// off.
 #[test]
 fn a_frame_solves_its_still_part_on_the_reference_map() {
     let cfg = FitConfig {
@@ -351,12 +351,15 @@ fn a_frame_solves_its_still_part_on_the_reference_map() {
     };
     let (mapped, rm) = fit(&with_map);
     let (plain, rp) = fit(&memory);
-    // (off by default: the memory's map is then left aside)
+    // (with `frame_map` off the memory's map is left aside)
     let (off, ro) = bostrack_fit::refit_dots_remembered(
         &img,
         None,
         &seeds2,
-        &FitConfig::default(),
+        &FitConfig {
+            frame_map: false,
+            ..FitConfig::default()
+        },
         &noise,
         &prior,
         None,

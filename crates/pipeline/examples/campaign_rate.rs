@@ -3,7 +3,10 @@
 //! validation, uncertainty; figures off) ≤ 60 ms of CPU, reported as frames per second per core
 //! on a campaign of synthetic 1-MP frames").
 //!
-//! `cargo run --release -p bostrack-pipeline --example campaign_rate -- [--frames N] [--jobs 1,2] [--runs R] [--size PX]`
+//! `cargo run --release -p bostrack-pipeline --example campaign_rate -- [--frames N] [--jobs 1,2] [--runs R] [--size PX] [--frame-map true|false]`
+//!
+//! (`--frame-map`: the real frame with `[fit] frame_map` set so, instead of the sample's
+//! configuration's)
 //!
 //! 1. Writes a synthetic campaign into a temporary folder with `bostrack-synth`: a
 //!    `--size`² reference (default 1024², 8 px square lattice, σ 1.25 px: 16,384 dots), a
@@ -191,6 +194,9 @@ fn main() -> Res<()> {
     if bostrack_io::bos_sample_dir().is_some() {
         let mut cfg = load_config(&sample_cfg)?;
         cfg.output.figures.clear();
+        if let Some(v) = arg("--frame-map") {
+            cfg.fit.frame_map = v.parse()?;
+        }
         let plan = Plan::from_config(cfg, &sample_cfg)?;
         let out = tmp.path().join("real");
         let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build()?;

@@ -420,7 +420,7 @@ fn frame_only(
             Some(m),
         )
     };
-    // (`[fit] frame_map` is off by default)
+    // (`[fit] frame_map` is on by default; the passes alone with it off)
     let on = FitConfig {
         frame_map: true,
         ..cfg.clone()

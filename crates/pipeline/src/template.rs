@@ -222,7 +222,7 @@ pub(crate) const SECTIONS: &[SectionDoc] = &[
                 "With neighbours = \"subtract\": solve the still part of each gradient frame (dots that,\n\
                  with their neighbours, moved like the whole frame) on the reference's linear coupling\n\
                  map instead of refitting them in every pass: ~20 % less CPU in the real sample's fit\n\
-                 stage, but 0.26 % larger rms error on a crowded synthetic campaign. Off by default.",
+                 stage, the same joint solution. false: the passes alone.",
             ),
             key(
                 "residual_false_alarm",
