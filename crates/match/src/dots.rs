@@ -3,7 +3,7 @@
 
 use crate::error::MatchError;
 use crate::nearest::{NearestConfig, iterate, mutual_pass_sets};
-use crate::points::{PointSet, median};
+use crate::points::{RadiusSet, median};
 use bostrack_core::{DotFit, DotFlags, GridIndex};
 use rayon::prelude::*;
 use std::collections::HashMap;
@@ -404,7 +404,7 @@ impl<'a> IndexPredictor<'a> {
 }
 
 /// One pass of the index-pair check with predicted displacements `pred`: which usable index
-/// pairs (`paired[i] = Some(j)`) disagree with the mutual nearest neighbours (within `r2`)
+/// pairs (`paired[i] = Some(j)`) disagree with the mutual nearest neighbours (within `radius`)
 /// between predicted reference positions `r + pred` and the usable gradient dots.
 ///
 /// Same result as a full mutual-nearest-neighbour pass (pair `i` disagrees when the mutual
@@ -416,10 +416,10 @@ fn index_pair_check(
     ref_pos: &[[f64; 2]],
     grad_pos: &[[f64; 2]],
     use_ref: &[bool],
-    grad_set: &PointSet,
+    grad_set: &RadiusSet,
     paired: &[Option<usize>],
     pred: &[[f64; 2]],
-    r2: f64,
+    radius: f64,
 ) -> Vec<bool> {
     let n = ref_pos.len();
     let predicted: Vec<[f64; 2]> = (0..n)
@@ -434,9 +434,7 @@ fn index_pair_check(
             if !use_ref[i] {
                 return None;
             }
-            grad_set
-                .nearest(&predicted[i])
-                .and_then(|(k, d2)| (d2 <= r2).then_some(k))
+            grad_set.nearest(&predicted[i]).map(|(k, _)| k)
         })
         .collect();
     let mut hits = vec![0u32; grad_pos.len()];
@@ -450,7 +448,9 @@ fn index_pair_check(
             forward[i].is_some_and(|k| k != j) || hits[j] > u32::from(forward[i] == Some(j))
         })
     });
-    let pred_set = needs_backward.then(|| PointSet::new(&predicted, |i| use_ref[i]));
+    // (a backward query starts at a gradient dot some forward query found within the radius:
+    // the nearest predicted position lies within it too)
+    let pred_set = needs_backward.then(|| RadiusSet::new(&predicted, |i| use_ref[i], radius));
     let backward = |g: &[f64; 2]| -> Option<usize> {
         pred_set.as_ref().and_then(|s| s.nearest(g)).map(|(m, _)| m)
     };
@@ -532,14 +532,21 @@ fn by_grid_index(
             })
             .collect()
     };
-    let r2 = cfg.nearest.radius * cfg.nearest.radius;
     let mut flagged = vec![false; reference.len()];
     let mut passes = 0;
     if paired.iter().any(Option::is_some) {
-        let grad_set = PointSet::new(grad_pos, |j| use_grad[j]);
+        let grad_set = RadiusSet::new(grad_pos, |j| use_grad[j], cfg.nearest.radius);
         loop {
             let pred = predict_all(use_ref, &flagged);
-            let next = index_pair_check(ref_pos, grad_pos, use_ref, &grad_set, &paired, &pred, r2);
+            let next = index_pair_check(
+                ref_pos,
+                grad_pos,
+                use_ref,
+                &grad_set,
+                &paired,
+                &pred,
+                cfg.nearest.radius,
+            );
             passes += 1;
             // the next pass would predict from the same pairs: nothing can change
             let settled = next == flagged;

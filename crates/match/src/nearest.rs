@@ -2,7 +2,7 @@
 //! predictor.
 
 use crate::error::MatchError;
-use crate::points::{PointSet, median};
+use crate::points::{PointSet, RadiusSet, median};
 
 /// Settings of the nearest-neighbour matcher ([`match_points`], and the nearest-neighbour parts
 /// of [`crate::match_dots`]).
@@ -135,10 +135,9 @@ pub(crate) fn iterate(
     init: [f64; 2],
     cfg: &NearestConfig,
 ) -> (Vec<Option<usize>>, usize) {
-    let grad_set = PointSet::new(gradient, |j| use_grad[j]);
-    let r2 = cfg.radius * cfg.radius;
+    let grad_set = RadiusSet::new(gradient, |j| use_grad[j], cfg.radius);
     let mut pred = vec![init; reference.len()];
-    let mut partner = mutual_pass(reference, gradient, use_ref, &grad_set, &pred, r2);
+    let mut partner = mutual_pass(reference, gradient, use_ref, &grad_set, &pred, cfg.radius);
     let mut passes = 1;
     for _ in 0..cfg.iterations {
         if partner.iter().all(Option::is_none) {
@@ -152,7 +151,7 @@ pub(crate) fn iterate(
             cfg.predictor_neighbours,
             init,
         );
-        let next = mutual_pass(reference, gradient, use_ref, &grad_set, &pred, r2);
+        let next = mutual_pass(reference, gradient, use_ref, &grad_set, &pred, cfg.radius);
         passes += 1;
         if next == partner {
             break;
@@ -208,15 +207,8 @@ pub(crate) fn mutual_pass_sets(
     pred: &[[f64; 2]],
     radius: f64,
 ) -> Vec<Option<usize>> {
-    let grad_set = PointSet::new(gradient, |j| use_grad[j]);
-    mutual_pass(
-        reference,
-        gradient,
-        use_ref,
-        &grad_set,
-        pred,
-        radius * radius,
-    )
+    let grad_set = RadiusSet::new(gradient, |j| use_grad[j], radius);
+    mutual_pass(reference, gradient, use_ref, &grad_set, pred, radius)
 }
 
 /// One mutual-nearest-neighbour pass with predicted displacements `pred`.
@@ -224,25 +216,27 @@ pub(crate) fn mutual_pass(
     reference: &[[f64; 2]],
     gradient: &[[f64; 2]],
     use_ref: &[bool],
-    grad_set: &PointSet,
+    grad_set: &RadiusSet,
     pred: &[[f64; 2]],
-    r2: f64,
+    radius: f64,
 ) -> Vec<Option<usize>> {
     let predicted: Vec<[f64; 2]> = reference
         .iter()
         .zip(pred)
         .map(|(r, d)| [r[0] + d[0], r[1] + d[1]])
         .collect();
-    let pred_set = PointSet::new(&predicted, |i| use_ref[i]);
+    // (the backward query starts at a gradient dot within the radius of predicted[i]: the
+    // nearest predicted position lies within it too)
+    let pred_set = RadiusSet::new(&predicted, |i| use_ref[i], radius);
     let mut partner = vec![None; reference.len()];
     for (i, p) in predicted.iter().enumerate() {
         if !use_ref[i] {
             continue;
         }
-        let Some((j, d2)) = grad_set.nearest(p) else {
+        let Some((j, _)) = grad_set.nearest(p) else {
             continue;
         };
-        if d2 <= r2 && pred_set.nearest(&gradient[j]).map(|(back, _)| back) == Some(i) {
+        if pred_set.nearest(&gradient[j]).map(|(back, _)| back) == Some(i) {
             partner[i] = Some(j);
         }
     }

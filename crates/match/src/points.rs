@@ -146,6 +146,145 @@ impl PointSet {
     }
 }
 
+/// The nearest point within a fixed radius: the points of `source` that are kept and finite,
+/// in square cells a little wider than the radius, so that a query reads the 3 × 3 cells around
+/// its own (a few points on a dot lattice) instead of walking a tree and collecting its answer
+/// in a fresh list (~2,800 instructions per query of [`PointSet::nearest`] on a real frame's
+/// 12,236 dots). Same answers as [`PointSet::nearest`] kept where its distance is within the
+/// radius: squared distances computed as kiddo does (`dx² + dy²`), ties to the lowest source
+/// index. Points spread over far more cells than there are points (a stray far point) fall
+/// back to the tree.
+pub(crate) struct RadiusSet {
+    r2: f64,
+    kind: RadiusKind,
+}
+
+enum RadiusKind {
+    Cells {
+        /// Cell width (px), the origin's coordinates and the grid's size in cells.
+        cell: f64,
+        origin: [f64; 2],
+        nx: usize,
+        ny: usize,
+        /// Points of cell `c`: `points[start[c]..start[c + 1]]`, (x, y, source index), in
+        /// source order.
+        start: Vec<u32>,
+        points: Vec<(f64, f64, u32)>,
+    },
+    Tree(PointSet),
+}
+
+impl RadiusSet {
+    /// The set of `source[i]` with `keep(i)` and a finite point, for queries within `radius`.
+    pub(crate) fn new(source: &[[f64; 2]], keep: impl Fn(usize) -> bool, radius: f64) -> Self {
+        let r2 = radius * radius;
+        let kept: Vec<u32> = (0..source.len().min(u32::MAX as usize))
+            .filter(|&i| keep(i) && source[i][0].is_finite() && source[i][1].is_finite())
+            .map(|i| i as u32)
+            .collect();
+        let tree = |keep: &dyn Fn(usize) -> bool| RadiusSet {
+            r2,
+            kind: RadiusKind::Tree(PointSet::new(source, keep)),
+        };
+        // (a cell wider than the radius by far more than rounding: a point within the radius
+        // of a query lies in one of the 3 × 3 cells around the query's)
+        let cell = radius * (1.0 + 1e-6);
+        if !(cell.is_finite() && cell > 0.0) || kept.is_empty() {
+            return tree(&keep);
+        }
+        let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+        for &i in &kept {
+            for a in 0..2 {
+                lo[a] = lo[a].min(source[i as usize][a]);
+                hi[a] = hi[a].max(source[i as usize][a]);
+            }
+        }
+        let span = |a: usize| ((hi[a] - lo[a]) / cell).floor() + 1.0;
+        let (sx, sy) = (span(0), span(1));
+        // (finite points: the spans are numbers, +∞ for a span beyond f64)
+        if sx * sy > 16.0 * kept.len() as f64 + 65_536.0 {
+            return tree(&keep);
+        }
+        let (nx, ny) = (sx as usize, sy as usize);
+        let at = |p: &[f64; 2]| {
+            let cx = (((p[0] - lo[0]) / cell).floor() as usize).min(nx - 1);
+            let cy = (((p[1] - lo[1]) / cell).floor() as usize).min(ny - 1);
+            cy * nx + cx
+        };
+        let mut start = vec![0u32; nx * ny + 1];
+        for &i in &kept {
+            start[at(&source[i as usize]) + 1] += 1;
+        }
+        for c in 0..nx * ny {
+            start[c + 1] += start[c];
+        }
+        let mut fill = start.clone();
+        let mut points = vec![(0.0, 0.0, 0u32); kept.len()];
+        for &i in &kept {
+            let p = source[i as usize];
+            let c = at(&p);
+            points[fill[c] as usize] = (p[0], p[1], i);
+            fill[c] += 1;
+        }
+        RadiusSet {
+            r2,
+            kind: RadiusKind::Cells {
+                cell,
+                origin: lo,
+                nx,
+                ny,
+                start,
+                points,
+            },
+        }
+    }
+
+    /// The nearest point to `p` within the radius: (source index, squared distance); the
+    /// lowest source index among equally near points; `None` where none is that near.
+    #[inline]
+    pub(crate) fn nearest(&self, p: &[f64; 2]) -> Option<(usize, f64)> {
+        if !(p[0].is_finite() && p[1].is_finite()) {
+            return None;
+        }
+        match &self.kind {
+            RadiusKind::Tree(set) => set.nearest(p).filter(|&(_, d2)| d2 <= self.r2),
+            RadiusKind::Cells {
+                cell,
+                origin,
+                nx,
+                ny,
+                start,
+                points,
+            } => {
+                // the query's cell (possibly outside the grid) and the cells around it
+                let range = |v: f64, o: f64, n: usize| {
+                    let c = ((v - o) / cell).floor();
+                    let a = (c - 1.0).max(0.0);
+                    let b = (c + 1.0).min(n as f64 - 1.0);
+                    (a <= b).then_some((a as usize, b as usize))
+                };
+                let (x0, x1) = range(p[0], origin[0], *nx)?;
+                let (y0, y1) = range(p[1], origin[1], *ny)?;
+                let mut best: Option<(u32, f64)> = None;
+                for cy in y0..=y1 {
+                    let row = cy * nx;
+                    let (a, b) = (start[row + x0] as usize, start[row + x1 + 1] as usize);
+                    for &(x, y, i) in &points[a..b] {
+                        let (dx, dy) = (x - p[0], y - p[1]);
+                        let d2 = dx * dx + dy * dy;
+                        if d2 <= self.r2
+                            && best.is_none_or(|(bi, bd)| d2 < bd || (d2 == bd && i < bi))
+                        {
+                            best = Some((i, d2));
+                        }
+                    }
+                }
+                best.map(|(i, d2)| (i as usize, d2))
+            }
+        }
+    }
+}
+
 /// Reorder `v` so that its first `k` entries are the `k` smallest in (squared distance, index)
 /// order (the keys are distinct: indices are). Quickselect, insertion sort for short spans.
 fn select_smallest(v: &mut [(f64, u32)], k: usize) {
@@ -272,6 +411,7 @@ mod tests {
     /// Queries inside, on and far outside the points.
     #[test]
     fn index_agrees_with_brute_force() {
+        // (also the nearest point within a radius, `RadiusSet`)
         let mut rng = StdRng::seed_from_u64(3);
         let lattice = |j: f64, rng: &mut StdRng| -> Vec<[f64; 2]> {
             (0..900)
@@ -323,6 +463,19 @@ mod tests {
         for (name, src) in &sets {
             let keep = |i: usize| i % 11 != 4;
             let s = PointSet::new(src, keep);
+            // (radii below, at and above the lattice's half spacing; the stray point and the
+            // clusters' spread fall back to the tree)
+            let within: Vec<(f64, RadiusSet)> = [0.5, 3.2, 4.0, 8.0, 25.0]
+                .iter()
+                .map(|&r| (r, RadiusSet::new(src, keep, r)))
+                .collect();
+            let cells = |w: &RadiusSet| matches!(w.kind, RadiusKind::Cells { .. });
+            if !matches!(*name, "stray point" | "two clusters") {
+                // (0.5 px cells over the lattice: more cells than the limit, the tree)
+                assert!(within[1..].iter().all(|(_, w)| cells(w)), "{name}");
+            } else {
+                assert!(!cells(&within[1].1), "{name}");
+            }
             let kept: Vec<[f64; 2]> = src
                 .iter()
                 .enumerate()
@@ -344,6 +497,15 @@ mod tests {
                     b.first().map(|&(d, i)| (i as usize, d)),
                     "{name} {q:?}"
                 );
+                for (r, w) in &within {
+                    assert_eq!(
+                        w.nearest(q),
+                        b.first()
+                            .filter(|&&(d, _)| d <= r * r)
+                            .map(|&(d, i)| (i as usize, d)),
+                        "{name} {q:?} within {r}"
+                    );
+                }
                 for k in [1, 4, 9, 30] {
                     let ex = (qi % 3 == 0).then_some(qi * 7 % src.len());
                     s.nearest_n(q, k, ex, &mut out);
