@@ -186,10 +186,7 @@ impl RadiusSet {
             r2,
             kind: RadiusKind::Tree(PointSet::new(source, keep)),
         };
-        // (a cell wider than the radius by far more than rounding: a point within the radius
-        // of a query lies in one of the 3 × 3 cells around the query's)
-        let cell = radius * (1.0 + 1e-6);
-        if !(cell.is_finite() && cell > 0.0) || kept.is_empty() {
+        if !(radius.is_finite() && radius > 0.0) || kept.is_empty() {
             return tree(&keep);
         }
         let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
@@ -199,6 +196,11 @@ impl RadiusSet {
                 hi[a] = hi[a].max(source[i as usize][a]);
             }
         }
+        // (a cell wider than the radius by far more than the rounding of a cell's coordinate,
+        // a few ulp of the largest coordinate: a point within the radius of a query lies in
+        // one of the 3 × 3 cells around the query's)
+        let largest = lo.iter().chain(&hi).fold(0.0f64, |m, v| m.max(v.abs()));
+        let cell = radius * (1.0 + 1e-6) + 1e-12 * largest;
         let span = |a: usize| ((hi[a] - lo[a]) / cell).floor() + 1.0;
         let (sx, sy) = (span(0), span(1));
         // (finite points: the spans are numbers, +∞ for a span beyond f64)
@@ -456,6 +458,16 @@ mod tests {
         sets.push(("two clusters", clusters));
         let line: Vec<[f64; 2]> = (0..400).map(|k| [3.0 * k as f64, 7.0]).collect();
         sets.push(("line", line));
+        // (far from the origin: the cells' rounding)
+        let far: Vec<[f64; 2]> = (0..400)
+            .map(|k| {
+                [
+                    3e8 + 0.75 * (k % 20) as f64 + rng.random_range(0.0..0.5),
+                    -7e8 + 0.75 * (k / 20) as f64,
+                ]
+            })
+            .collect();
+        sets.push(("far away", far));
         let mut dup: Vec<[f64; 2]> = (0..300).map(|k| [(k % 7) as f64, (k % 5) as f64]).collect();
         dup.push([f64::NAN, 1.0]);
         sets.push(("duplicates", dup));
