@@ -404,7 +404,8 @@ impl<'a> IndexPredictor<'a> {
 }
 
 /// One pass of the index-pair check with predicted displacements `pred`: which usable index
-/// pairs (`paired[i] = Some(j)`) disagree with the mutual nearest neighbours (within `radius`)
+/// pairs (`paired[i] = Some(j)`) disagree with the mutual nearest neighbours (within the radius
+/// of `grad_set`)
 /// between predicted reference positions `r + pred` and the usable gradient dots.
 ///
 /// Same result as a full mutual-nearest-neighbour pass (pair `i` disagrees when the mutual
@@ -419,7 +420,6 @@ fn index_pair_check(
     grad_set: &RadiusSet,
     paired: &[Option<usize>],
     pred: &[[f64; 2]],
-    radius: f64,
 ) -> Vec<bool> {
     let n = ref_pos.len();
     let predicted: Vec<[f64; 2]> = (0..n)
@@ -450,7 +450,8 @@ fn index_pair_check(
     });
     // (a backward query starts at a gradient dot some forward query found within the radius:
     // the nearest predicted position lies within it too)
-    let pred_set = needs_backward.then(|| RadiusSet::new(&predicted, |i| use_ref[i], radius));
+    let pred_set =
+        needs_backward.then(|| RadiusSet::new(&predicted, |i| use_ref[i], grad_set.radius()));
     let backward = |g: &[f64; 2]| -> Option<usize> {
         pred_set.as_ref().and_then(|s| s.nearest(g)).map(|(m, _)| m)
     };
@@ -538,15 +539,7 @@ fn by_grid_index(
         let grad_set = RadiusSet::new(grad_pos, |j| use_grad[j], cfg.nearest.radius);
         loop {
             let pred = predict_all(use_ref, &flagged);
-            let next = index_pair_check(
-                ref_pos,
-                grad_pos,
-                use_ref,
-                &grad_set,
-                &paired,
-                &pred,
-                cfg.nearest.radius,
-            );
+            let next = index_pair_check(ref_pos, grad_pos, use_ref, &grad_set, &paired, &pred);
             passes += 1;
             // the next pass would predict from the same pairs: nothing can change
             let settled = next == flagged;

@@ -137,7 +137,7 @@ pub(crate) fn iterate(
 ) -> (Vec<Option<usize>>, usize) {
     let grad_set = RadiusSet::new(gradient, |j| use_grad[j], cfg.radius);
     let mut pred = vec![init; reference.len()];
-    let mut partner = mutual_pass(reference, gradient, use_ref, &grad_set, &pred, cfg.radius);
+    let mut partner = mutual_pass(reference, gradient, use_ref, &grad_set, &pred);
     let mut passes = 1;
     for _ in 0..cfg.iterations {
         if partner.iter().all(Option::is_none) {
@@ -151,7 +151,7 @@ pub(crate) fn iterate(
             cfg.predictor_neighbours,
             init,
         );
-        let next = mutual_pass(reference, gradient, use_ref, &grad_set, &pred, cfg.radius);
+        let next = mutual_pass(reference, gradient, use_ref, &grad_set, &pred);
         passes += 1;
         if next == partner {
             break;
@@ -208,7 +208,7 @@ pub(crate) fn mutual_pass_sets(
     radius: f64,
 ) -> Vec<Option<usize>> {
     let grad_set = RadiusSet::new(gradient, |j| use_grad[j], radius);
-    mutual_pass(reference, gradient, use_ref, &grad_set, pred, radius)
+    mutual_pass(reference, gradient, use_ref, &grad_set, pred)
 }
 
 /// One mutual-nearest-neighbour pass with predicted displacements `pred`.
@@ -218,7 +218,6 @@ pub(crate) fn mutual_pass(
     use_ref: &[bool],
     grad_set: &RadiusSet,
     pred: &[[f64; 2]],
-    radius: f64,
 ) -> Vec<Option<usize>> {
     let predicted: Vec<[f64; 2]> = reference
         .iter()
@@ -227,7 +226,7 @@ pub(crate) fn mutual_pass(
         .collect();
     // (the backward query starts at a gradient dot within the radius of predicted[i]: the
     // nearest predicted position lies within it too)
-    let pred_set = RadiusSet::new(&predicted, |i| use_ref[i], radius);
+    let pred_set = RadiusSet::new(&predicted, |i| use_ref[i], grad_set.radius());
     let mut partner = vec![None; reference.len()];
     for (i, p) in predicted.iter().enumerate() {
         if !use_ref[i] {

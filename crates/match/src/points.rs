@@ -155,6 +155,7 @@ impl PointSet {
 /// index. Points spread over far more cells than there are points (a stray far point) fall
 /// back to the tree.
 pub(crate) struct RadiusSet {
+    radius: f64,
     r2: f64,
     kind: RadiusKind,
 }
@@ -183,6 +184,7 @@ impl RadiusSet {
             .map(|i| i as u32)
             .collect();
         let tree = |keep: &dyn Fn(usize) -> bool| RadiusSet {
+            radius,
             r2,
             kind: RadiusKind::Tree(PointSet::new(source, keep)),
         };
@@ -213,22 +215,23 @@ impl RadiusSet {
             let cy = (((p[1] - lo[1]) / cell).floor() as usize).min(ny - 1);
             cy * nx + cx
         };
+        let cells: Vec<usize> = kept.iter().map(|&i| at(&source[i as usize])).collect();
         let mut start = vec![0u32; nx * ny + 1];
-        for &i in &kept {
-            start[at(&source[i as usize]) + 1] += 1;
+        for &c in &cells {
+            start[c + 1] += 1;
         }
         for c in 0..nx * ny {
             start[c + 1] += start[c];
         }
         let mut fill = start.clone();
         let mut points = vec![(0.0, 0.0, 0u32); kept.len()];
-        for &i in &kept {
+        for (&i, &c) in kept.iter().zip(&cells) {
             let p = source[i as usize];
-            let c = at(&p);
             points[fill[c] as usize] = (p[0], p[1], i);
             fill[c] += 1;
         }
         RadiusSet {
+            radius,
             r2,
             kind: RadiusKind::Cells {
                 cell,
@@ -239,6 +242,11 @@ impl RadiusSet {
                 points,
             },
         }
+    }
+
+    /// The radius the set answers within.
+    pub(crate) fn radius(&self) -> f64 {
+        self.radius
     }
 
     /// The nearest point to `p` within the radius: (source index, squared distance); the
