@@ -297,20 +297,21 @@ impl Coupling {
                     .filter(|&i| pending[i] && live[i] && self.red[i] == colour)
                     .collect();
                 let now: &[[f64; 8]] = delta;
+                let arch = crate::simd::arch();
                 active
                     .par_iter()
                     .with_min_len(256)
                     .map(|&i| {
                         let (a, b) = (self.start[i], self.start[i + 1]);
-                        let mut v = own[i];
-                        for (&j, mj) in self.nb[a..b].iter().zip(&self.m[a..b]) {
-                            let dj = &now[j as usize];
-                            for (col, &x) in mj.iter().zip(dj) {
-                                for (vr, &c) in v.iter_mut().zip(col) {
-                                    *vr -= f64::from(c) * x;
-                                }
-                            }
-                        }
+                        let v = crate::simd::link_row(
+                            arch,
+                            crate::simd::LinkRow {
+                                own: own[i],
+                                nb: &self.nb[a..b],
+                                m: &self.m[a..b],
+                                now,
+                            },
+                        );
                         let s = &self.scale[i];
                         let moved = (0..nd)
                             .map(|k| (v[k] - now[i][k]).abs() / s[k])

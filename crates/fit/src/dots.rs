@@ -1158,7 +1158,7 @@ impl<'a> Iteration<'a> {
         // (only where the passes would refit much of the image: on a target whose dots barely
         // overlap they have little to do, and the map's set-up would cost more than it saves)
         let hybrid = hybrid.filter(|_| {
-            let pulls = self.neighbour_pull(&items, &links, None);
+            let pulls = self.neighbour_pull(&items, &links, None, None);
             let owing = pulls.iter().filter(|&&p| p > tol).count();
             owing as f64 >= CANVAS_FRACTION * self.seeds.len() as f64
         });
@@ -1171,12 +1171,14 @@ impl<'a> Iteration<'a> {
         loop {
             let passes = refits.len() as u32;
             // the pull owed since each dot was last fitted or checked (small pulls add up)
+            // (the map answers for the linear dots: their pulls are not computed, 0)
+            let skip = hybrid.as_ref().map(|h| h.state.live.as_slice());
             let now = match halves.take() {
-                None => self.neighbour_pull(&items, &links, None),
+                None => self.neighbour_pull(&items, &links, None, skip),
                 Some(first) => {
                     let second: Vec<bool> = first.iter().map(|f| !f).collect();
-                    let of_first = self.neighbour_pull(&items, &links, Some(&first));
-                    let of_second = self.neighbour_pull(&items, &links, Some(&second));
+                    let of_first = self.neighbour_pull(&items, &links, Some(&first), skip);
+                    let of_second = self.neighbour_pull(&items, &links, Some(&second), skip);
                     of_first
                         .iter()
                         .zip(&of_second)
@@ -1521,9 +1523,16 @@ impl<'a> Iteration<'a> {
     /// refit (standard deviations) times the square root of the share of its squared profile
     /// that falls into this dot's window: an estimate of how far the dot would move if refitted
     /// now (Cauchy-Schwarz on the linearised fit), in its standard deviations.
-    /// `only`: count the moves of these dots only (all without). The sums run in each row's
-    /// order, so they do not depend on the thread count.
-    fn neighbour_pull(&self, items: &[Item], links: &Links, only: Option<&[bool]>) -> Vec<f64> {
+    /// `only`: count the moves of these dots only (all without); `skip`: the dots whose pull is
+    /// not asked for (0 for them). The sums run in each row's order, so they do not depend on
+    /// the thread count.
+    fn neighbour_pull(
+        &self,
+        items: &[Item],
+        links: &Links,
+        only: Option<&[bool]>,
+        skip: Option<&[bool]>,
+    ) -> Vec<f64> {
         // each dot's move where it counts, 0 where it does not: a compact copy, since the rows
         // read it at random (from the ~0.2 kB records, a cache miss per link)
         let moves: Vec<f64> = items
@@ -1543,7 +1552,7 @@ impl<'a> Iteration<'a> {
             .enumerate()
             .with_min_len(256)
             .map(|(i, s)| {
-                if absent(s, &items[i].fit) {
+                if skip.is_some_and(|k| k[i]) || absent(s, &items[i].fit) {
                     return 0.0;
                 }
                 links
