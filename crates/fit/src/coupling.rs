@@ -302,16 +302,7 @@ impl Coupling {
                     .par_iter()
                     .with_min_len(256)
                     .map(|&i| {
-                        let (a, b) = (self.start[i], self.start[i + 1]);
-                        let v = crate::simd::link_row(
-                            arch,
-                            crate::simd::LinkRow {
-                                own: own[i],
-                                nb: &self.nb[a..b],
-                                m: &self.m[a..b],
-                                now,
-                            },
-                        );
+                        let v = self.row(arch, i, own[i], now);
                         let s = &self.scale[i];
                         let moved = (0..nd)
                             .map(|k| (v[k] - now[i][k]).abs() / s[k])
@@ -340,6 +331,20 @@ impl Coupling {
                 return Some(sweeps);
             }
         }
+    }
+
+    /// Dot `i`'s row of the map applied to `x`: `own − Σ_j M_ij x_j` over its links.
+    fn row(&self, arch: pulp::Arch, i: usize, own: [f64; 8], x: &[[f64; 8]]) -> [f64; 8] {
+        let (a, b) = (self.start[i], self.start[i + 1]);
+        crate::simd::link_row(
+            arch,
+            crate::simd::LinkRow {
+                own,
+                nb: &self.nb[a..b],
+                m: &self.m[a..b],
+                now: x,
+            },
+        )
     }
 
     /// The parameters of a dot whose first-pass fit `g` lies `own` from its base (over its dot
@@ -467,27 +472,21 @@ impl Coupling {
             return None;
         }
         let raw = delta.clone();
-        // each prior's offset from the base (in position: the prior is the base moved)
-        let h: Vec<[f64; 8]> = (0..n)
-            .map(|i| self.position_offset(i, &prior[i].params))
+        // each prior's offset from the base (in position: the prior is the base moved), negated:
+        // `own + Σ M h` is the sweeps' row with `−h` (`v − c·(−x)` is `v + c·x` to the bit)
+        let minus_h: Vec<[f64; 8]> = (0..n)
+            .map(|i| self.position_offset(i, &prior[i].params).map(|v| -v))
             .collect();
+        let arch = crate::simd::arch();
         let own: Vec<[f64; 8]> = (0..n)
             .into_par_iter()
             .with_min_len(256)
             .map(|i| {
-                let mut v = raw[i];
-                if !linear[i] {
-                    return v;
+                if linear[i] {
+                    self.row(arch, i, raw[i], &minus_h)
+                } else {
+                    raw[i]
                 }
-                let (a, b) = (self.start[i], self.start[i + 1]);
-                for (&j, mj) in self.nb[a..b].iter().zip(&self.m[a..b]) {
-                    for (col, &x) in mj.iter().zip(&h[j as usize]) {
-                        for (vr, &c) in v.iter_mut().zip(col) {
-                            *vr += f64::from(c) * x;
-                        }
-                    }
-                }
-                v
             })
             .collect();
         for i in 0..n {
