@@ -133,6 +133,9 @@ pub(crate) struct Shape {
     pub ta: f64,
     pub tb: f64,
     pub tc: f64,
+    /// Second derivatives of `a` and `c` by t (`2 cosh 2t e^{-2u}`, `2 cosh 2t e^{-2v}`).
+    pub att: f64,
+    pub ctt: f64,
 }
 
 impl Shape {
@@ -156,6 +159,8 @@ impl Shape {
             ta: -0.5 * s2t * eu2,
             tb: c2t * euv,
             tc: -0.5 * s2t * ev2,
+            att: 2.0 * c2t * eu2,
+            ctt: 2.0 * c2t * ev2,
         }
     }
     pub fn of(theta: &Theta) -> Shape {
@@ -195,6 +200,11 @@ impl Kind {
     }
     pub fn n_free(self) -> usize {
         self.free().len()
+    }
+    /// Whether a point-sampled pass also makes the residual's moments of degree 3 and 4 (the
+    /// Newton term of a free shape, [`newton_matrix`]).
+    pub fn hess(self) -> bool {
+        matches!(self, Kind::Elliptical | Kind::AxisAligned | Kind::Circular)
     }
     /// Coefficients C (rows: free parameters, columns: basis φ), row-major 7×7 (unused rows 0).
     pub fn coefficients(self, theta: &Theta, s: &Shape) -> [[f64; 7]; 7] {
@@ -585,6 +595,12 @@ pub(crate) struct Pass {
     pub finite: bool,
     /// The shape coefficients at the evaluated θ (for [`normal_equations`]).
     pub shape: Shape,
+    /// `Σ w r E XᵐYⁿ` for (m, n) = (3, 0), (2, 1), (1, 2), (0, 3), (4, 0), (3, 1), (2, 2),
+    /// (1, 3), (0, 4), where the pass made them (`has_rh`: a point-sampled pass asked for
+    /// them): with [`Pass::grad`] the moments of the Newton step's second-order term
+    /// ([`newton_matrix`]).
+    pub rh: [f64; 9],
+    pub has_rh: bool,
 }
 
 /// Basis description: (power of E, power of X, power of Y) of φ_0..φ_6.
@@ -608,8 +624,23 @@ pub(crate) fn evaluate(
     kind: Kind,
     noise: &NoiseModel,
 ) -> Pass {
+    evaluate_h(ws, theta, sampling, kind, noise, false)
+}
+
+/// [`evaluate`], with the residual's moments of degree 3 and 4 where `hess` and the pass is
+/// point-sampled ([`Pass::rh`]).
+pub(crate) fn evaluate_h(
+    ws: &mut Workspace,
+    theta: &Theta,
+    sampling: Sampling,
+    kind: Kind,
+    noise: &NoiseModel,
+    hess: bool,
+) -> Pass {
     match sampling {
-        Sampling::Point => eval_point_moments(ws, theta, &Shape::of(theta), noise),
+        Sampling::Point => {
+            eval_point_moments(ws, theta, &Shape::of(theta), noise, hess && kind.hess())
+        }
         Sampling::Integrated => {
             fill_phi_integrated(ws, theta, kind);
             eval_general(ws, theta, noise)
@@ -619,17 +650,29 @@ pub(crate) fn evaluate(
 
 /// Point-sampled pass with the moment accumulation ([`crate::simd::column_sums`] of a `MomentsIn`: per
 /// column over the rows, then folded with the columns' X powers).
-fn eval_point_moments(ws: &mut Workspace, theta: &Theta, s: &Shape, noise: &NoiseModel) -> Pass {
+fn eval_point_moments(
+    ws: &mut Workspace,
+    theta: &Theta,
+    s: &Shape,
+    noise: &NoiseModel,
+    hess: bool,
+) -> Pass {
     let x_first = ws.wx as f64 - theta[IX];
     let y_first = ws.wy as f64 - theta[IY];
     exp_grid(
         s.a, s.b, s.c, x_first, y_first, ws.w, ws.h, &mut ws.e, &mut ws.v, &mut ws.q,
     );
-    point_sums(ws, theta, s, noise)
+    point_sums(ws, theta, s, noise, hess)
 }
 
 /// The weighted sums of the point-sampled pass from the unit dot `E` at θ already in `ws.e`.
-fn point_sums(ws: &mut Workspace, theta: &Theta, s: &Shape, noise: &NoiseModel) -> Pass {
+fn point_sums(
+    ws: &mut Workspace,
+    theta: &Theta,
+    s: &Shape,
+    noise: &NoiseModel,
+    hess: bool,
+) -> Pass {
     let (w, h) = (ws.w, ws.h);
     let x_first = ws.wx as f64 - theta[IX];
     let y_first = ws.wy as f64 - theta[IY];
@@ -656,11 +699,13 @@ fn point_sums(ws: &mut Workspace, theta: &Theta, s: &Shape, noise: &NoiseModel) 
         bg: theta[IB],
         x_first,
         y_first,
+        hess,
     };
     let simd::Moments {
         mut m2,
         mut m1,
         mut r1,
+        mut rh,
         mut m0,
         mut r0,
         mut cost,
@@ -676,6 +721,11 @@ fn point_sums(ws: &mut Workspace, theta: &Theta, s: &Shape, noise: &NoiseModel) 
         for (a, b) in m1.iter_mut().zip(r1.iter_mut()) {
             a.iter_mut().for_each(|v| *v *= scale);
             b.iter_mut().for_each(|v| *v *= scale);
+        }
+        if hess {
+            for row in rh.iter_mut() {
+                row.iter_mut().for_each(|v| *v *= scale);
+            }
         }
     }
     let mut gram = [[0.0; 7]; 7];
@@ -699,6 +749,11 @@ fn point_sums(ws: &mut Workspace, theta: &Theta, s: &Shape, noise: &NoiseModel) 
         grad,
         finite,
         shape: *s,
+        rh: [
+            rh[3][0], rh[2][1], rh[1][2], rh[0][3], rh[4][0], rh[3][1], rh[2][2], rh[1][3],
+            rh[0][4],
+        ],
+        has_rh: hess,
     }
 }
 
@@ -1114,6 +1169,8 @@ pub(crate) fn eval_general(ws: &mut Workspace, theta: &Theta, noise: &NoiseModel
         grad,
         finite,
         shape: Shape::of(theta),
+        rh: [0.0; 9],
+        has_rh: false,
     }
 }
 
@@ -1171,6 +1228,133 @@ pub(crate) fn normal_equations(
         }
     }
     (nm, g)
+}
+
+/// The Newton matrix `H = N − R` of the free parameters at the pass's θ (n × n in the top left;
+/// `nm` is the pass's normal matrix `N`), with `R = Σ w r ∂²μ/∂θ∂θᵀ` the second-order term
+/// that Gauss-Newton leaves out: `½∇² Σ w r² = H` for the solve's fixed weights. `None` for a
+/// pass without the residual's moments of degree 3 and 4 where the kind's shape is free, for
+/// the linear kind (R = 0), and where an entry is not finite.
+///
+/// With `μ = B + A·E`, `E = exp(−Q/2)`, `Q = aX² + 2bXY + cY²`: `∂²μ/∂p∂q = A·E·(¼ Q_p Q_q − ½
+/// Q_pq)` for p, q among the centre and shape, `∂²μ/∂A∂q = −½ Q_q E`, zero for the rest. Every
+/// `Q_p` is `−2 p̂` with `p̂` the Jacobian's coefficients on the basis over `A` (at most three
+/// monomials of degree ≤ 2), every `Q_pq` a quadratic too, so `R` is the residual's moments
+/// `S(m, n) = Σ w r E XᵐYⁿ` (m + n ≤ 4) contracted with them: `R_pq = A (p̂ M q̂ᵀ − ½ Σ Q_pq S)`
+/// with `M_ij = S(mono_i + mono_j)` over the monomials 1, X, Y, X², XY, Y²; `R_Ap = p̂ · S`.
+/// Test `newton_matrix_is_the_residual_hessian`.
+pub(crate) fn newton_matrix(
+    kind: Kind,
+    theta: &Theta,
+    pass: &Pass,
+    nm: &[[f64; 7]; 7],
+) -> Option<[[f64; 7]; 7]> {
+    let shape_free = matches!(kind, Kind::Elliptical | Kind::AxisAligned | Kind::Circular);
+    if kind == Kind::Linear || (shape_free && !pass.has_rh) {
+        return None;
+    }
+    // (a held shape uses the moments of degree ≤ 2 only: its rows of degree 3, 4 are unread)
+    let [s30, s21, s12, s03, s40, s31, s22, s13, s04] = pass.rh;
+    let g = &pass.grad;
+    let (s00, s10, s01, s20, s11, s02) = (g[0], g[1], g[2], g[3], g[4], g[5]);
+    let mm = [
+        [s00, s10, s01, s20, s11, s02],
+        [s10, s20, s11, s30, s21, s12],
+        [s01, s11, s02, s21, s12, s03],
+        [s20, s30, s21, s40, s31, s22],
+        [s11, s21, s12, s31, s22, s13],
+        [s02, s12, s03, s22, s13, s04],
+    ];
+    let sh = &pass.shape;
+    let (a, b, c) = (sh.a, sh.b, sh.c);
+    let (ta, tb, tc) = (sh.ta, sh.tb, sh.tc);
+    // p̂ of x0, y0, u, v, t: (monomial, coefficient) × 3
+    let rows: [[(usize, f64); 3]; 5] = [
+        [(1, a), (2, b), (0, 0.0)],
+        [(1, b), (2, c), (0, 0.0)],
+        [(3, a), (4, b), (0, 0.0)],
+        [(4, b), (5, c), (0, 0.0)],
+        [(3, ta), (4, tb), (5, tc)],
+    ];
+    let mut cm = [[0.0; 6]; 5];
+    for (p, row) in rows.iter().enumerate() {
+        let [(i0, c0), (i1, c1), (i2, c2)] = *row;
+        for j in 0..6 {
+            cm[p][j] = c0 * mm[i0][j] + c1 * mm[i1][j] + c2 * mm[i2][j];
+        }
+    }
+    let quad = |p: usize, q: usize| {
+        let [(i0, c0), (i1, c1), (i2, c2)] = rows[q];
+        c0 * cm[p][i0] + c1 * cm[p][i1] + c2 * cm[p][i2]
+    };
+    // (a, b, c) differentiated by u, v, t, and twice
+    let d1 = [
+        (-2.0 * a, -b, 0.0),
+        (0.0, -b, -2.0 * c),
+        (-2.0 * ta, -tb, -2.0 * tc),
+    ];
+    let d2 = |i: usize, j: usize| match (i, j) {
+        (0, 0) => (4.0 * a, b, 0.0),
+        (0, 1) => (0.0, b, 0.0),
+        (1, 1) => (0.0, b, 4.0 * c),
+        (0, 2) => (4.0 * ta, tb, 0.0),
+        (1, 2) => (0.0, tb, 4.0 * tc),
+        _ => (sh.att, 4.0 * b, sh.ctt),
+    };
+    const NL: [usize; 5] = [IX, IY, IU, IV, IT];
+    let mut r = [[0.0; 7]; 7];
+    let am = theta[IA];
+    let mut set = |p: usize, q: usize, v: f64| {
+        r[NL[p]][NL[q]] = v;
+        r[NL[q]][NL[p]] = v;
+    };
+    set(0, 0, am * (quad(0, 0) - a * s00));
+    set(0, 1, am * (quad(0, 1) - b * s00));
+    set(1, 1, am * (quad(1, 1) - c * s00));
+    for k in 0..3 {
+        let (da, db, dc) = d1[k];
+        set(0, k + 2, am * (quad(0, k + 2) + da * s10 + db * s01));
+        set(1, k + 2, am * (quad(1, k + 2) + db * s10 + dc * s01));
+        for l in k..3 {
+            let (ea, eb, ec) = d2(k, l);
+            let w = ea * s20 + 2.0 * eb * s11 + ec * s02;
+            set(k + 2, l + 2, am * (quad(k + 2, l + 2) - 0.5 * w));
+        }
+    }
+    let s1 = [s00, s10, s01, s20, s11, s02];
+    for (p, row) in rows.iter().enumerate() {
+        let [(i0, c0), (i1, c1), (i2, c2)] = *row;
+        let v = c0 * s1[i0] + c1 * s1[i1] + c2 * s1[i2];
+        r[IA][NL[p]] = v;
+        r[NL[p]][IA] = v;
+    }
+    // onto the free parameters (the circular model's IU is u and v together); an entry that
+    // is not finite fails the factorisation, and the step is Gauss-Newton's
+    let mut h = *nm;
+    if kind == Kind::Elliptical {
+        for (hk, (nk, rk)) in h.iter_mut().zip(nm.iter().zip(r.iter())) {
+            for (x, (a, b)) in hk.iter_mut().zip(nk.iter().zip(rk.iter())) {
+                *x = a - b;
+            }
+        }
+        return Some(h);
+    }
+    if kind == Kind::Circular {
+        for row in r.iter_mut() {
+            row[IU] += row[IV];
+        }
+        let v = r[IV];
+        for (x, y) in r[IU].iter_mut().zip(v) {
+            *x += y;
+        }
+    }
+    let free = kind.free();
+    for (k, &p) in free.iter().enumerate() {
+        for (l, &q) in free.iter().enumerate() {
+            h[k][l] = nm[k][l] - r[p][q];
+        }
+    }
+    Some(h)
 }
 
 /// Fills `ws.tmp` with the unit-amplitude factor `E` of the dot θ over the workspace window,
@@ -1350,10 +1534,13 @@ pub(crate) fn resum(
     ws: &mut Workspace,
     theta: &Theta,
     sampling: Sampling,
+    kind: Kind,
     noise: &NoiseModel,
+    hess: bool,
 ) -> Pass {
+    let hess = hess && kind.hess();
     match sampling {
-        Sampling::Point => point_sums(ws, theta, &Shape::of(theta), noise),
+        Sampling::Point => point_sums(ws, theta, &Shape::of(theta), noise, hess),
         Sampling::Integrated => eval_general(ws, theta, noise),
     }
 }
@@ -1520,6 +1707,86 @@ mod tests {
         }
     }
 
+    /// The Newton matrix is the Jacobian of the gradient: `g = Σ w r ∂μ/∂θ = −½∇cost`, so
+    /// `∂g/∂θ = −H`, checked by central differences of `g` on a window whose data are another
+    /// dot plus a fixed pattern (a residual of every shape, so that `R` is far from 0), for
+    /// every kind, a tilted and an upright dot; without the residual's moments a free shape
+    /// has none, the linear kind never.
+    #[test]
+    fn newton_matrix_is_the_residual_hessian() {
+        let win = Window::new(4, 3, 13, 12);
+        for (rho, sy) in [(0.35, 1.1), (0.0, 1.4), (-0.6, 0.9)] {
+            let g = Gaussian2D {
+                rho,
+                sigma_y: sy,
+                ..dot()
+            };
+            let truth = Gaussian2D {
+                x0: g.x0 + 0.4,
+                y0: g.y0 - 0.3,
+                sigma_x: g.sigma_x * 1.2,
+                amplitude: g.amplitude * 0.8,
+                ..g
+            };
+            let mut ws = ws_for(win);
+            let rendered = bostrack_model::render(&truth, win, Sampling::Point);
+            for (k, (d, v)) in ws.data.iter_mut().zip(&rendered).enumerate() {
+                *d = v + 30.0 * ((k * 37 % 11) as f64 - 5.0);
+            }
+            ws.keep.fill(1.0);
+            let noise = NoiseModel::read(10.0);
+            for kind in [
+                Kind::Elliptical,
+                Kind::AxisAligned,
+                Kind::Circular,
+                Kind::FixedShape,
+            ] {
+                let mut theta = theta_from_gaussian(&g);
+                kind.constrain(&mut theta);
+                let n = kind.n_free();
+                let pass = evaluate_h(&mut ws, &theta, Sampling::Point, kind, &noise, true);
+                let (nm, _) = normal_equations(kind, &theta, &pass);
+                let h = newton_matrix(kind, &theta, &pass, &nm).expect("a Newton matrix");
+                let grad_at = |ws: &mut Workspace, t: &Theta| {
+                    let p = evaluate(ws, t, Sampling::Point, kind, &noise);
+                    normal_equations(kind, t, &p).1
+                };
+                for l in 0..n {
+                    let step = if kind.free()[l] == IA { 1.0 } else { 1e-4 };
+                    let mut d = [0.0; 7];
+                    d[l] = step;
+                    let gp = grad_at(&mut ws, &kind.apply_step(&theta, &d));
+                    d[l] = -step;
+                    let gm = grad_at(&mut ws, &kind.apply_step(&theta, &d));
+                    for k in 0..n {
+                        let fd = -(gp[k] - gm[k]) / (2.0 * step);
+                        let scale = (nm[k][k] * nm[l][l]).sqrt();
+                        assert!(
+                            (h[k][l] - fd).abs() <= 1e-6 * scale,
+                            "{kind:?} ρ {rho} H{k}{l}: {} vs {fd} (N {})",
+                            h[k][l],
+                            nm[k][l]
+                        );
+                    }
+                }
+                // R is not negligible here (else the test would not see it)
+                let r_size = (0..n)
+                    .flat_map(|k| (0..n).map(move |l| (k, l)))
+                    .map(|(k, l)| (h[k][l] - nm[k][l]).abs() / (nm[k][k] * nm[l][l]).sqrt())
+                    .fold(0.0, f64::max);
+                assert!(r_size > 1e-2, "{kind:?} ρ {rho}: R/N only {r_size}");
+                if kind != Kind::FixedShape {
+                    let plain = evaluate(&mut ws, &theta, Sampling::Point, kind, &noise);
+                    assert!(newton_matrix(kind, &theta, &plain, &nm).is_none());
+                }
+            }
+            let theta = theta_from_gaussian(&g);
+            let pass = evaluate_h(&mut ws, &theta, Sampling::Point, Kind::Linear, &noise, true);
+            let (nm, _) = normal_equations(Kind::Linear, &theta, &pass);
+            assert!(newton_matrix(Kind::Linear, &theta, &pass, &nm).is_none());
+        }
+    }
+
     fn truth_theta(g: &Gaussian2D) -> Theta {
         theta_from_gaussian(g)
     }
@@ -1547,7 +1814,14 @@ mod tests {
             offset: 20.0,
         };
         set_weights(&mut ws, &truth_theta(&truth), Sampling::Point, &noise);
-        let a = eval_point_moments(&mut ws, &theta, &Shape::of(&theta), &noise);
+        let a = eval_point_moments(&mut ws, &theta, &Shape::of(&theta), &noise, false);
+        // the pass with the residual's moments of degree 3, 4: the same sums besides
+        let ah = eval_point_moments(&mut ws, &theta, &Shape::of(&theta), &noise, true);
+        assert!(ah.has_rh && !a.has_rh);
+        assert_eq!(
+            (a.cost, a.ssr, a.gram, a.grad),
+            (ah.cost, ah.ssr, ah.gram, ah.grad)
+        );
         fill_phi_point(&mut ws, &theta);
         let b = eval_general(&mut ws, &theta, &noise);
         assert!((a.cost - b.cost).abs() < 1e-9 * b.cost);
@@ -1617,7 +1891,7 @@ mod tests {
             let _ = evaluate(&mut ws, &theta, sampling, Kind::Elliptical, &noise);
             let _ = weight_change_at_model(&mut ws, &theta, &noise);
             std::mem::swap(&mut ws.w_cur, &mut ws.w_new);
-            let again = resum(&mut ws, &theta, sampling, &noise);
+            let again = resum(&mut ws, &theta, sampling, Kind::Elliptical, &noise, false);
             let fresh = evaluate(&mut ws, &theta, sampling, Kind::Elliptical, &noise);
             assert!(
                 (again.cost - fresh.cost).abs() <= 1e-12 * fresh.cost,

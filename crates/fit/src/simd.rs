@@ -129,15 +129,20 @@ pub(crate) const MAX_LANES: usize = 8;
 /// Column accumulators per window column: `Σ_rows w E² Yⁿ` (n = 0..4), `Σ w E Yⁿ` (0..2),
 /// `Σ w r E Yⁿ` (0..2), `Σ w`, `Σ w r`, `Σ w r²`, `Σ keep r²`.
 pub(crate) const N_ACC: usize = 15;
+/// [`N_ACC`] and `Σ w r E Yⁿ` (n = 3, 4): the pass that also gives the residual's moments of
+/// degree 3 and 4 (the Newton step's second-order term).
+pub(crate) const N_ACC_HESS: usize = N_ACC + 2;
 
 /// The sums of one point-sampled pass (before the constant-noise scale): `m2[m][n] = Σ w E² XᵐYⁿ`
 /// (m + n ≤ 4), `m1[m][n] = Σ w E XᵐYⁿ`, `r1[m][n] = Σ w r E XᵐYⁿ` (m + n ≤ 2), `m0 = Σ w`,
-/// `r0 = Σ w r`, `cost = Σ w r²`, `ssr = Σ keep r²`.
+/// `r0 = Σ w r`, `cost = Σ w r²`, `ssr = Σ keep r²`; with [`MomentsIn::hess`] also
+/// `rh[m][n] = Σ w r E XᵐYⁿ` for m + n = 3, 4 (0 elsewhere).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub(crate) struct Moments {
     pub m2: [[f64; 5]; 5],
     pub m1: [[f64; 3]; 3],
     pub r1: [[f64; 3]; 3],
+    pub rh: [[f64; 5]; 5],
     pub m0: f64,
     pub r0: f64,
     pub cost: f64,
@@ -158,11 +163,13 @@ pub(crate) struct MomentsIn<'a> {
     pub bg: f64,
     pub x_first: f64,
     pub y_first: f64,
+    /// Also the residual's moments of degree 3 and 4 ([`Moments::rh`]).
+    pub hess: bool,
 }
 
 /// Scratch length [`column_sums`] of a [`MomentsIn`] and [`column_sums`] of a [`BasisIn`] need for a window `w` columns wide.
 pub(crate) fn acc_len(w: usize) -> usize {
-    w.div_ceil(MAX_LANES) * MAX_LANES * N_ACC.max(N_BASIS)
+    w.div_ceil(MAX_LANES) * MAX_LANES * N_ACC_HESS.max(N_BASIS)
 }
 
 /// The moments of a pass ([`column_sums`] of a [`MomentsIn`]).
@@ -170,7 +177,20 @@ impl WithSimd for Columns<'_, MomentsIn<'_>> {
     type Output = Moments;
 
     #[inline(always)]
-    fn with_simd<S: Simd>(mut self, simd: S) -> Moments {
+    fn with_simd<S: Simd>(self, simd: S) -> Moments {
+        if self.inp.hess {
+            self.moments::<S, N_ACC_HESS>(simd)
+        } else {
+            self.moments::<S, N_ACC>(simd)
+        }
+    }
+}
+
+impl Columns<'_, MomentsIn<'_>> {
+    /// The pass's sums with `N` column accumulators: [`N_ACC`], or [`N_ACC_HESS`] with the
+    /// residual's moments of degree 3 and 4 (`Σ w r E Y³`, `Σ w r E Y⁴` per column).
+    #[inline(always)]
+    fn moments<S: Simd, const N: usize>(mut self, simd: S) -> Moments {
         let MomentsIn {
             e,
             d,
@@ -182,11 +202,12 @@ impl WithSimd for Columns<'_, MomentsIn<'_>> {
             bg,
             x_first,
             y_first,
+            hess: _,
         } = *self.inp;
         let (vamp, vbg) = (simd.splat_f64s(amp), simd.splat_f64s(bg));
         let mut m = Moments::default();
         // column group after column group, every row in order, the sums in registers
-        self.sums::<S, N_ACC>(
+        self.sums::<S, N>(
             simd,
             (w, h),
             |t, c0, j| {
@@ -216,6 +237,10 @@ impl WithSimd for Columns<'_, MomentsIn<'_>> {
                 t[12] = simd.add_f64s(t[12], wr);
                 t[13] = simd.add_f64s(t[13], simd.mul_f64s(wr, r));
                 t[14] = simd.add_f64s(t[14], simd.mul_f64s(simd.mul_f64s(ki, r), r));
+                if N == N_ACC_HESS {
+                    t[N_ACC] = simd.add_f64s(t[N_ACC], simd.mul_f64s(wre, vy3));
+                    t[N_ACC + 1] = simd.add_f64s(t[N_ACC + 1], simd.mul_f64s(wre, vy4));
+                }
             },
             // the columns folded (scalar, in order)
             |i, c| {
@@ -256,6 +281,18 @@ impl WithSimd for Columns<'_, MomentsIn<'_>> {
                 m.r0 += c.at(12);
                 m.cost += c.at(13);
                 m.ssr += c.at(14);
+                if N == N_ACC_HESS {
+                    let (r3, r4) = (c.at(N_ACC), c.at(N_ACC + 1));
+                    m.rh[3][0] += r0 * x3;
+                    m.rh[4][0] += r0 * x4;
+                    m.rh[2][1] += r1 * x2;
+                    m.rh[3][1] += r1 * x3;
+                    m.rh[1][2] += r2 * x;
+                    m.rh[2][2] += r2 * x2;
+                    m.rh[0][3] += r3;
+                    m.rh[1][3] += r3 * x;
+                    m.rh[0][4] += r4;
+                }
             },
         );
         m
@@ -913,36 +950,57 @@ mod tests {
         }
         for (w, h) in [(1, 1), (3, 5), (4, 4), (7, 9), (9, 9), (13, 11), (17, 3)] {
             let [e, d, keep, wt] = random_window(&mut rng, w, h);
-            let inp = MomentsIn {
-                e: &e,
-                d: &d,
-                keep: &keep,
-                wt: &wt,
-                w,
-                h,
-                amp: 1.7,
-                bg: 0.2,
-                x_first: -(w as f64) / 2.0 + 0.3,
-                y_first: -(h as f64) / 2.0 - 0.1,
-            };
             let mut acc = vec![f64::NAN; acc_len(w)];
-            let a = column_sums(fast, &inp, &mut acc);
-            let b = column_sums(Arch::Scalar, &inp, &mut acc);
-            assert_eq!(a, b, "{w}x{h}");
-            // against the direct sums
-            let mut m2_11 = 0.0;
-            let mut ssr = 0.0;
-            for j in 0..h {
-                for i in 0..w {
-                    let k = j * w + i;
-                    let (x, y) = (inp.x_first + i as f64, inp.y_first + j as f64);
-                    let r = d[k] - (inp.bg + inp.amp * e[k]);
-                    m2_11 += wt[k] * e[k] * e[k] * x * y;
-                    ssr += keep[k] * r * r;
+            for hess in [false, true] {
+                let inp = MomentsIn {
+                    e: &e,
+                    d: &d,
+                    keep: &keep,
+                    wt: &wt,
+                    w,
+                    h,
+                    amp: 1.7,
+                    bg: 0.2,
+                    x_first: -(w as f64) / 2.0 + 0.3,
+                    y_first: -(h as f64) / 2.0 - 0.1,
+                    hess,
+                };
+                let a = column_sums(fast, &inp, &mut acc);
+                let b = column_sums(Arch::Scalar, &inp, &mut acc);
+                assert_eq!(a, b, "{w}x{h}");
+                // against the direct sums
+                let mut m2_11 = 0.0;
+                let mut ssr = 0.0;
+                let mut rh = [[0.0; 5]; 5];
+                for j in 0..h {
+                    for i in 0..w {
+                        let k = j * w + i;
+                        let (x, y) = (inp.x_first + i as f64, inp.y_first + j as f64);
+                        let r = d[k] - (inp.bg + inp.amp * e[k]);
+                        m2_11 += wt[k] * e[k] * e[k] * x * y;
+                        ssr += keep[k] * r * r;
+                        for (m, row) in rh.iter_mut().enumerate() {
+                            for (n, v) in row.iter_mut().enumerate() {
+                                if (3..=4).contains(&(m + n)) {
+                                    *v += wt[k] * r * e[k] * x.powi(m as i32) * y.powi(n as i32);
+                                }
+                            }
+                        }
+                    }
+                }
+                assert!((a.m2[1][1] - m2_11).abs() <= 1e-12 * (1.0 + m2_11.abs()));
+                assert!((a.ssr - ssr).abs() <= 1e-12 * (1.0 + ssr));
+                for m in 0..5 {
+                    for n in 0..5 {
+                        let want = if hess { rh[m][n] } else { 0.0 };
+                        let got = a.rh[m][n];
+                        assert!(
+                            (got - want).abs() <= 1e-12 * (1.0 + want.abs()),
+                            "{w}x{h} hess {hess} rh{m}{n}: {got} vs {want}"
+                        );
+                    }
                 }
             }
-            assert!((a.m2[1][1] - m2_11).abs() <= 1e-12 * (1.0 + m2_11.abs()));
-            assert!((a.ssr - ssr).abs() <= 1e-12 * (1.0 + ssr));
 
             let q: Vec<f64> = (0..w).map(|_| rng.random::<f64>() + 0.5).collect();
             let v0: Vec<f64> = (0..w).map(|_| rng.random::<f64>()).collect();

@@ -2,8 +2,8 @@
 //! pixels, fixed-size arrays, no allocation.
 
 use crate::eval::{
-    IA, IT, IU, IV, IX, IY, Kind, Pass, Theta, Workspace, evaluate, normal_equations, resum,
-    start_linear, weight_change, weight_change_at_model,
+    IA, IB, IT, IU, IV, IX, IY, Kind, Pass, Theta, Workspace, evaluate_h, newton_matrix,
+    normal_equations, resum, start_linear, weight_change, weight_change_at_model,
 };
 use bostrack_core::{FitStatus, NoiseModel};
 use bostrack_model::Sampling;
@@ -226,9 +226,23 @@ pub(crate) fn position_bound(nm: &[[f64; 7]; 7], n: usize) -> Option<[f64; 2]> {
 
 /// `xᵀ N x` over the leading n×n block.
 pub(crate) fn quad_form(nm: &[[f64; 7]; 7], x: &[f64; 7], n: usize) -> f64 {
+    // fixed sizes: the loops unroll
+    match n {
+        7 => quad_form_n::<7>(nm, x),
+        6 => quad_form_n::<6>(nm, x),
+        5 => quad_form_n::<5>(nm, x),
+        4 => quad_form_n::<4>(nm, x),
+        3 => quad_form_n::<3>(nm, x),
+        2 => quad_form_n::<2>(nm, x),
+        1 => quad_form_n::<1>(nm, x),
+        _ => 0.0,
+    }
+}
+
+fn quad_form_n<const N: usize>(nm: &[[f64; 7]; 7], x: &[f64; 7]) -> f64 {
     let mut s = 0.0;
-    for i in 0..n {
-        for j in 0..n {
+    for i in 0..N {
+        for j in 0..N {
             s += x[i] * nm[i][j] * x[j];
         }
     }
@@ -259,6 +273,27 @@ pub(crate) struct Outcome {
 }
 
 const LAMBDA_START: f64 = 1e-3;
+/// Solves whose tolerance is at most this take Newton steps (the final fits, tolerance 0.05 by
+/// default); intermediate fits (tolerance 1, from the window's moments several standard
+/// deviations away) converge in about two Gauss-Newton steps, where Newton's overshoot
+/// (issue 17, bench/trackpy's peak-SNR-6 scene: 4,811 → 7,107 evaluations with 2,009 steps
+/// rejected).
+const NEWTON_TOLERANCE_MAX: f64 = 0.5;
+/// Longest Newton step taken (its length² in the Fisher metric, i.e. 2 standard deviations):
+/// beyond it the quadratic model of a start far away is not trusted and the step is
+/// Gauss-Newton's.
+const NEWTON_REACH2: f64 = 4.0;
+/// Newton steps only where the amplitude's signal-to-noise ratio at the start (`A √N_AA`, the
+/// amplitude over its bound with the other parameters known) is below this: Gauss-Newton's
+/// linear rate is the size of the residual's term against `N`, which falls as 1/SNR; at the
+/// peak-SNR-6 scene's (10-15) its steps shrink by ~0.4 each (3.3 per final fit, 1.0 with
+/// Newton's); at σ 1.25 px and peak SNR ~40 (110-120) and on the real sample (90-170) both
+/// take the same evaluations, and the residual's moments would only cost.
+const NEWTON_Z_MAX: f64 = 30.0;
+/// Nor below this SNR (near the detection limit, where a fit's amplitude may end at 0 and the
+/// presence test decides: Gauss-Newton's path there as before; pipeline test `faint`'s peak SNR
+/// 3.5 missed 13 instead of 11 of 2,401 dots with Newton steps down to 0).
+const NEWTON_Z_MIN: f64 = 8.0;
 const LAMBDA_MIN: f64 = 1e-9;
 const LAMBDA_MAX: f64 = 1e10;
 
@@ -300,6 +335,7 @@ pub(crate) fn solve_fast(
     reweight: bool,
 ) -> Outcome {
     let mut theta0 = theta0;
+    let newton = tolerance <= NEWTON_TOLERANCE_MAX;
     start_linear(ws, &mut theta0, sampling, noise, bounds.amp_min);
     let reweight = reweight && !noise.is_constant();
     let (mut out, mut model_at) = lm_loop(
@@ -329,8 +365,11 @@ pub(crate) fn solve_fast(
         // the pass at the solution with the new weights: the last evaluation's model summed
         // again, or a new evaluation
         let (at, pass) = match model_at {
-            Some(at) => (at, resum(ws, &at, sampling, noise)),
-            None => (out.theta, evaluate(ws, &out.theta, sampling, kind, noise)),
+            Some(at) => (at, resum(ws, &at, sampling, kind, noise, newton)),
+            None => (
+                out.theta,
+                evaluate_h(ws, &out.theta, sampling, kind, noise, newton),
+            ),
         };
         if change <= RESOLVE {
             // the estimate moves by a second-order amount only: keep it, but give the Fisher
@@ -381,11 +420,35 @@ fn lm_loop(
 ) -> (Outcome, Option<Theta>) {
     let n = kind.n_free();
     let mut theta = theta0;
-    let mut pass: Pass = first.unwrap_or_else(|| evaluate(ws, &theta, sampling, kind, noise));
+    // Newton steps in a point-sampled final fit of a faint dot with a free centre (see
+    // NEWTON_Z_MAX; R = 0 for the linear fit); its evaluations then make
+    // the residual's moments that the Newton matrix needs. The amplitude's SNR from θ: a round
+    // Gaussian's Σ E² over the plane is π σx σy (less by √(1 − ρ²) for an elliptical one), at
+    // least the one pixel a narrow dot sits on, the variance the model's halfway up the dot
+    let newton = tolerance <= NEWTON_TOLERANCE_MAX
+        && sampling == Sampling::Point
+        && kind != Kind::Linear
+        && {
+            let e2 = (std::f64::consts::PI * (theta[IU] + theta[IV]).exp()).max(1.0);
+            let z2 = theta[IA] * theta[IA] * e2 / noise.variance(theta[IB] + 0.5 * theta[IA]);
+            (NEWTON_Z_MIN * NEWTON_Z_MIN..NEWTON_Z_MAX * NEWTON_Z_MAX).contains(&z2)
+        };
+    let mut pass: Pass =
+        first.unwrap_or_else(|| evaluate_h(ws, &theta, sampling, kind, noise, newton));
     // whether the workspace's model (the last evaluation) is at θ
     let mut model_at_theta = true;
     let mut cost = pass.cost;
     let (mut nm, mut g) = normal_equations(kind, &theta, &pass);
+    let hm_of = |kind, theta: &Theta, pass: &Pass, nm: &[[f64; 7]; 7]| {
+        if newton {
+            newton_matrix(kind, theta, pass, nm)
+        } else {
+            None
+        }
+    };
+    // the Newton matrix at θ, made when a step is solved for (not after the last evaluation)
+    let mut hm = None;
+    let mut hm_fresh = false;
     let done = |theta: Theta, status, iterations, nm, pass: &Pass, model| {
         let out = Outcome {
             theta,
@@ -410,8 +473,51 @@ fn lm_loop(
     let reweigh_step2 = RESOLVE * RESOLVE * noise.read_variance / (noise.gain * noise.gain);
     let mut lambda = LAMBDA_START;
     let mut left;
+    let ia = kind.free().iter().position(|&p| p == IA);
     for it in 1..=max_iterations {
-        let Some(step) = solve_damped(&nm, &g, n, lambda) else {
+        // the Newton step where its matrix (damped as Gauss-Newton's) is positive definite,
+        // else the Gauss-Newton one; `curv` the quadratic model's curvature along it
+        if !hm_fresh {
+            hm = hm_of(kind, &theta, &pass, &nm);
+            hm_fresh = true;
+        }
+        // an amplitude on its lower bound that the gradient pushes further down is held there
+        // (an active set): the step of the other parameters is the constrained problem's, not
+        // the projection of a step that moved all of them (issue 17: linear fits of empty
+        // lattice sites then crawled at λ = 1e10 to the iteration limit, the cost unchanged)
+        let pinned = ia
+            .filter(|&k| theta[IA] <= bounds.amp_min * (1.0 + 1e-9) && g[k] <= 0.0)
+            .map(|k| {
+                let (mut a, mut b, mut c) = (nm, g, hm);
+                for m in [Some(&mut a), c.as_mut()].into_iter().flatten() {
+                    let d = m[k][k];
+                    for j in 0..n {
+                        m[k][j] = 0.0;
+                        m[j][k] = 0.0;
+                    }
+                    m[k][k] = d;
+                }
+                b[k] = 0.0;
+                (a, b, c)
+            });
+        let (nm_s, g_s, hm_s) = match &pinned {
+            Some((a, b, c)) => (a, b, c.as_ref()),
+            None => (&nm, &g, hm.as_ref()),
+        };
+        let nstep = hm_s.and_then(|h| {
+            let mut hd = *h;
+            for k in 0..n {
+                hd[k][k] += lambda * nm_s[k][k];
+            }
+            let d = solve_damped(&hd, g_s, n, 0.0)?;
+            let len2 = quad_form(&nm, &d, n);
+            (len2 <= NEWTON_REACH2).then(|| (d, len2, quad_form(h, &d, n)))
+        });
+        let (step, known) = match nstep {
+            Some((d, len2, c)) => (Some(d), Some((len2, c))),
+            None => (solve_damped(nm_s, g_s, n, lambda), None),
+        };
+        let Some(step) = step else {
             lambda *= 10.0;
             if lambda > LAMBDA_MAX {
                 let model = model_at_theta.then_some(theta);
@@ -425,10 +531,11 @@ fn lm_loop(
         let finite = trial.iter().all(|v| v.is_finite());
         // the step's length² in the Fisher metric and gᵀδ: the linearised model's cost at the
         // trial is cost - 2 gᵀδ + δᵀ N δ
-        let (step2, gd) = (
-            quad_form(&nm, &step, n),
-            (0..n).map(|k| g[k] * step[k]).sum::<f64>(),
-        );
+        let gd = (0..n).map(|k| g[k] * step[k]).sum::<f64>();
+        let (step2, curv) = known.unwrap_or_else(|| {
+            let s2 = quad_form(&nm, &step, n);
+            (s2, s2)
+        });
         // a Gauss-Newton step (λ small) shorter than the tolerance: take it and stop without
         // evaluating the trial (the cost cannot rise measurably over a step of 1e-2 standard
         // deviations, and what is left after it is of second order); the Fisher matrix is the
@@ -436,7 +543,7 @@ fn lm_loop(
         if finite && !clamped && lambda <= 1e-2 && bounds.inside(&trial) && step2 <= tol2 {
             // residual sum of squares at the trial by the linearised model:
             // Σ w (r - Jδ)² = cost - 2 gᵀδ + δᵀ N δ (the unweighted one scaled alike)
-            let predicted = (cost - 2.0 * gd + step2).max(0.0);
+            let predicted = (cost - 2.0 * gd + curv).max(0.0);
             let ssr = if cost > 0.0 {
                 pass.ssr * predicted / cost
             } else {
@@ -458,7 +565,7 @@ fn lm_loop(
             false
         } else {
             left = false;
-            let p = evaluate(ws, &trial, sampling, kind, noise);
+            let p = evaluate_h(ws, &trial, sampling, kind, noise, newton);
             model_at_theta = false;
             if p.finite && p.cost <= cost {
                 // the step actually taken (after projection), in free coordinates
@@ -468,12 +575,13 @@ fn lm_loop(
                 }
                 let m2 = quad_form(&nm, &taken, n);
                 let damped = lambda > 1.0;
-                let gain = (cost - p.cost) / (2.0 * gd - step2).max(f64::MIN_POSITIVE);
+                let gain = (cost - p.cost) / (2.0 * gd - curv).max(f64::MIN_POSITIVE);
                 theta = trial;
                 cost = p.cost;
                 pass = p;
                 model_at_theta = true;
                 (nm, g) = normal_equations(kind, &theta, &pass);
+                hm_fresh = false;
                 // (a step that lowered the cost by less than a quarter of what the linear
                 // model predicted: the model is poor over that length, the next step shorter;
                 // issue 17: a held-shape fit of a σ 0.3 px dot, from its moments, crawled 50
@@ -495,13 +603,14 @@ fn lm_loop(
                     && weight_change_at_model(ws, &theta, noise) > RESOLVE
                 {
                     std::mem::swap(&mut ws.w_cur, &mut ws.w_new);
-                    pass = resum(ws, &theta, sampling, noise);
+                    pass = resum(ws, &theta, sampling, kind, noise, newton);
                     if !pass.finite {
                         let model = Some(theta);
                         return done(theta, FitStatus::NonFinite, it, nm, &pass, model);
                     }
                     cost = pass.cost;
                     (nm, g) = normal_equations(kind, &theta, &pass);
+                    hm_fresh = false;
                 }
                 true
             } else {

@@ -27,10 +27,26 @@ pub(crate) fn moment_correction(f: f64) -> f64 {
 pub(crate) fn background(ws: &mut Workspace) -> f64 {
     let (w, h) = (ws.w, ws.h);
     ws.sort_buf.clear();
-    for j in 0..h {
+    if w > 0 && h > 0 {
+        // the ring's pixels: the first and the last row, the first and the last column of the
+        // rows between (the median does not depend on their order)
+        let mut push = |k: usize| {
+            if ws.keep[k] > 0.0 {
+                ws.sort_buf.push(ws.data[k]);
+            }
+        };
         for i in 0..w {
-            if (j == 0 || j + 1 == h || i == 0 || i + 1 == w) && ws.keep[j * w + i] > 0.0 {
-                ws.sort_buf.push(ws.data[j * w + i]);
+            push(i);
+        }
+        for j in 1..h.saturating_sub(1) {
+            push(j * w);
+            if w > 1 {
+                push(j * w + w - 1);
+            }
+        }
+        if h > 1 {
+            for i in 0..w {
+                push((h - 1) * w + i);
             }
         }
     }
@@ -57,10 +73,24 @@ pub(crate) fn background(ws: &mut Workspace) -> f64 {
 pub(crate) fn peak_pixel(ws: &Workspace, start: [f64; 2]) -> Option<usize> {
     let (w, h) = (ws.w, ws.h);
     let r = (0.375 * w.min(h) as f64).max(2.5);
+    // the rows and columns of the disc's bounding box (in window indices, clipped), scanned in
+    // the same order as the whole window: the same first brightest pixel (issue 17: the whole
+    // window's scan was a fifth of the moments' start)
+    let span = |first: i64, c: f64, n: usize| {
+        // (a hair wider than the disc: the disc's own test decides at its edge)
+        let lo = (c - r - first as f64 - 1e-6).ceil().max(0.0);
+        let hi = (c + r - first as f64 + 1e-6).floor().min(n as f64 - 1.0);
+        if hi.is_nan() || lo.is_nan() || lo > hi {
+            0..0
+        } else {
+            lo as usize..hi as usize + 1
+        }
+    };
     let mut best: Option<(usize, f64)> = None;
-    for j in 0..h {
+    let cols = span(ws.wx, start[0], w);
+    for j in span(ws.wy, start[1], h) {
         let dy = (ws.wy + j as i64) as f64 - start[1];
-        for i in 0..w {
+        for i in cols.clone() {
             let dx = (ws.wx + i as i64) as f64 - start[0];
             let k = j * w + i;
             if ws.keep[k] > 0.0
@@ -364,6 +394,77 @@ pub(crate) fn three_point(ws: &mut Workspace, start: [f64; 2]) -> Result<Theta, 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The ring's median and the brightest pixel near the start are those of the whole
+    /// window's scans they replace (every window shape from 1 × 1, masked pixels, starts
+    /// inside, on the edge of and outside the window).
+    #[test]
+    fn ring_and_peak_scans_equal_the_whole_window_scans() {
+        use rand::{RngExt, SeedableRng, rngs::StdRng};
+        let mut rng = StdRng::seed_from_u64(5);
+        for (w, h) in [(1, 1), (1, 4), (5, 1), (2, 2), (3, 7), (9, 9), (15, 13)] {
+            for _ in 0..50 {
+                let mut ws = Workspace::default();
+                ws.resize(7, -3, w, h);
+                for k in 0..w * h {
+                    // ties on purpose: values from a few levels
+                    ws.data[k] = rng.random_range(0..6) as f64;
+                    ws.keep[k] = if rng.random::<f64>() < 0.2 { 0.0 } else { 1.0 };
+                }
+                let mut ring = vec![];
+                for j in 0..h {
+                    for i in 0..w {
+                        if (j == 0 || j + 1 == h || i == 0 || i + 1 == w)
+                            && ws.keep[j * w + i] > 0.0
+                        {
+                            ring.push(ws.data[j * w + i]);
+                        }
+                    }
+                }
+                let bg = background(&mut ws);
+                if ring.len() >= 4 {
+                    ring.sort_by(f64::total_cmp);
+                    let k = ((ring.len() - 1) as f64 * 0.5).round() as usize;
+                    assert_eq!(bg, ring[k], "{w}x{h}");
+                }
+                let start = [
+                    7.0 + rng.random_range(-4.0..w as f64 + 4.0),
+                    -3.0 + rng.random_range(-4.0..h as f64 + 4.0),
+                ];
+                let r = (0.375 * w.min(h) as f64).max(2.5);
+                let mut best: Option<(usize, f64)> = None;
+                for j in 0..h {
+                    let dy = (ws.wy + j as i64) as f64 - start[1];
+                    for i in 0..w {
+                        let dx = (ws.wx + i as i64) as f64 - start[0];
+                        let k = j * w + i;
+                        if ws.keep[k] > 0.0
+                            && dx * dx + dy * dy <= r * r
+                            && best.is_none_or(|(_, v)| ws.data[k] > v)
+                        {
+                            best = Some((k, ws.data[k]));
+                        }
+                    }
+                }
+                assert_eq!(
+                    peak_pixel(&ws, start),
+                    best.map(|(k, _)| k),
+                    "{w}x{h} {start:?}"
+                );
+            }
+            // a start exactly a radius away along a row
+            let mut ws = Workspace::default();
+            ws.resize(0, 0, w, h);
+            ws.data
+                .iter_mut()
+                .enumerate()
+                .for_each(|(k, v)| *v = k as f64);
+            ws.keep.fill(1.0);
+            let r = (0.375 * w.min(h) as f64).max(2.5);
+            let start = [w as f64 - 1.0 + r, 0.0];
+            assert_eq!(peak_pixel(&ws, start), Some(w - 1), "{w}x{h} edge");
+        }
+    }
 
     /// The correction factor agrees with a direct numerical integration over a fine grid.
     #[test]
