@@ -757,6 +757,20 @@ fn point_sums(
     }
 }
 
+/// The point-sampled pass at θ from the unit dot `E` that [`dot_factor`] left in `ws.tmp` at
+/// θ's centre and shape (as [`start_linear`] does): the same sums as [`evaluate_h`] without
+/// rendering `E` again (`ws.tmp` and `ws.e` are swapped; `dot_factor` calls the same
+/// `exp_grid` with the same arguments, so the bits are the same).
+pub(crate) fn pass_from_factor(
+    ws: &mut Workspace,
+    theta: &Theta,
+    noise: &NoiseModel,
+    hess: bool,
+) -> Pass {
+    std::mem::swap(&mut ws.e, &mut ws.tmp);
+    point_sums(ws, theta, &Shape::of(theta), noise, hess)
+}
+
 /// 1-D pixel moments of g(X) = exp(-a X²/2) over [X - 1/2, X + 1/2], `(∫g, ∫Xg, ∫X²g)` in the
 /// first three entries of `out[i]`, for the pixels `X = first + i`: each pixel edge's `erfc`
 /// and `exp` once, shared by the two pixels it bounds (issue 17: half the special functions of
@@ -1784,6 +1798,40 @@ mod tests {
             let pass = evaluate_h(&mut ws, &theta, Sampling::Point, Kind::Linear, &noise, true);
             let (nm, _) = normal_equations(Kind::Linear, &theta, &pass);
             assert!(newton_matrix(Kind::Linear, &theta, &pass, &nm).is_none());
+        }
+    }
+
+    /// The pass from the linear start's rendering is the evaluation's, bit for bit (the
+    /// solver takes it instead of rendering the dot again).
+    #[test]
+    fn pass_from_the_start_factor_is_the_evaluation() {
+        let win = Window::new(3, 2, 11, 12);
+        let truth = Gaussian2D { rho: -0.3, ..dot() };
+        let noise = NoiseModel {
+            read_variance: 100.0,
+            gain: 0.8,
+            offset: 20.0,
+        };
+        for hess in [false, true] {
+            let mut ws = ws_for(win);
+            ws.data
+                .copy_from_slice(&bostrack_model::render(&truth, win, Sampling::Integrated));
+            ws.keep.fill(1.0);
+            ws.keep[5] = 0.0;
+            let mut theta = theta_from_gaussian(&Gaussian2D {
+                x0: truth.x0 - 0.3,
+                amplitude: 300.0,
+                background: 0.0,
+                ..truth
+            });
+            start_linear(&mut ws, &mut theta, Sampling::Point, &noise, 1e-9);
+            assert!(theta[IA] > 300.0, "the linear start set the amplitude");
+            let a = pass_from_factor(&mut ws, &theta, &noise, hess);
+            let b = evaluate_h(&mut ws, &theta, Sampling::Point, Kind::Elliptical, &noise, hess);
+            assert_eq!(
+                (a.cost, a.ssr, a.gram, a.grad, a.rh, a.has_rh),
+                (b.cost, b.ssr, b.gram, b.grad, b.rh, b.has_rh)
+            );
         }
     }
 

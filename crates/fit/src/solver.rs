@@ -3,7 +3,7 @@
 
 use crate::eval::{
     IA, IB, IT, IU, IV, IX, IY, Kind, Pass, Theta, Workspace, evaluate_h, newton_matrix,
-    normal_equations, resum, start_linear, weight_change, weight_change_at_model,
+    normal_equations, pass_from_factor, resum, start_linear, weight_change, weight_change_at_model,
 };
 use bostrack_core::{FitStatus, NoiseModel};
 use bostrack_model::Sampling;
@@ -292,7 +292,7 @@ const NEWTON_REACH2: f64 = 4.0;
 const NEWTON_Z_MAX: f64 = 30.0;
 /// Nor below this SNR (near the detection limit, where a fit's amplitude may end at 0 and the
 /// presence test decides: Gauss-Newton's path there as before; pipeline test `faint`'s peak SNR
-/// 3.5 missed 13 instead of 11 of 2,401 dots with Newton steps down to 0).
+/// 3.5 missed 13 instead of 12 of 2,401 dots with Newton steps down to 0).
 const NEWTON_Z_MIN: f64 = 8.0;
 const LAMBDA_MIN: f64 = 1e-9;
 const LAMBDA_MAX: f64 = 1e10;
@@ -335,13 +335,18 @@ pub(crate) fn solve_fast(
     reweight: bool,
 ) -> Outcome {
     let mut theta0 = theta0;
-    let newton = tolerance <= NEWTON_TOLERANCE_MAX;
     start_linear(ws, &mut theta0, sampling, noise, bounds.amp_min);
     let reweight = reweight && !noise.is_constant();
+    // the first pass from the unit dot the linear start rendered (point-sampled: `E` does not
+    // depend on the amplitude and background it set; the pass's own `exp_grid` again gave the
+    // same bits)
+    let newton = takes_newton(tolerance, sampling, kind, &theta0, noise);
+    let first = (sampling == Sampling::Point)
+        .then(|| pass_from_factor(ws, &theta0, noise, newton && kind.hess()));
     let (mut out, mut model_at) = lm_loop(
         ws,
         theta0,
-        None,
+        first,
         kind,
         sampling,
         noise,
@@ -402,6 +407,26 @@ pub(crate) fn solve_fast(
     out
 }
 
+/// Whether a solve from θ takes Newton steps: a point-sampled final fit (tolerance at most
+/// [`NEWTON_TOLERANCE_MAX`]) of a dot with a free centre (R = 0 for the linear fit) whose
+/// amplitude SNR is in the Newton band ([`NEWTON_Z_MIN`], [`NEWTON_Z_MAX`]); its evaluations
+/// then make the residual's moments that the Newton matrix needs. The SNR from θ: a round
+/// Gaussian's Σ E² over the plane is π σx σy (less by √(1 − ρ²) for an elliptical one), at
+/// least the one pixel a narrow dot sits on, the variance the model's halfway up the dot.
+fn takes_newton(
+    tolerance: f64,
+    sampling: Sampling,
+    kind: Kind,
+    theta: &Theta,
+    noise: &NoiseModel,
+) -> bool {
+    tolerance <= NEWTON_TOLERANCE_MAX && sampling == Sampling::Point && kind != Kind::Linear && {
+        let e2 = (std::f64::consts::PI * (theta[IU] + theta[IV]).exp()).max(1.0);
+        let z2 = theta[IA] * theta[IA] * e2 / noise.variance(theta[IB] + 0.5 * theta[IA]);
+        (NEWTON_Z_MIN * NEWTON_Z_MIN..NEWTON_Z_MAX * NEWTON_Z_MAX).contains(&z2)
+    }
+}
+
 /// One Levenberg-Marquardt solve from `theta0` (`first`: the pass at `theta0` with the current
 /// weights, if already made). Also returns the θ of the model that the workspace holds from
 /// the last evaluation where that is the solution or a step shorter than the tolerance from it.
@@ -420,19 +445,7 @@ fn lm_loop(
 ) -> (Outcome, Option<Theta>) {
     let n = kind.n_free();
     let mut theta = theta0;
-    // Newton steps in a point-sampled final fit of a faint dot with a free centre (see
-    // NEWTON_Z_MAX; R = 0 for the linear fit); its evaluations then make
-    // the residual's moments that the Newton matrix needs. The amplitude's SNR from θ: a round
-    // Gaussian's Σ E² over the plane is π σx σy (less by √(1 − ρ²) for an elliptical one), at
-    // least the one pixel a narrow dot sits on, the variance the model's halfway up the dot
-    let newton = tolerance <= NEWTON_TOLERANCE_MAX
-        && sampling == Sampling::Point
-        && kind != Kind::Linear
-        && {
-            let e2 = (std::f64::consts::PI * (theta[IU] + theta[IV]).exp()).max(1.0);
-            let z2 = theta[IA] * theta[IA] * e2 / noise.variance(theta[IB] + 0.5 * theta[IA]);
-            (NEWTON_Z_MIN * NEWTON_Z_MIN..NEWTON_Z_MAX * NEWTON_Z_MAX).contains(&z2)
-        };
+    let newton = takes_newton(tolerance, sampling, kind, &theta, noise);
     let mut pass: Pass =
         first.unwrap_or_else(|| evaluate_h(ws, &theta, sampling, kind, noise, newton));
     // whether the workspace's model (the last evaluation) is at θ
