@@ -1827,7 +1827,14 @@ mod tests {
             start_linear(&mut ws, &mut theta, Sampling::Point, &noise, 1e-9);
             assert!(theta[IA] > 300.0, "the linear start set the amplitude");
             let a = pass_from_factor(&mut ws, &theta, &noise, hess);
-            let b = evaluate_h(&mut ws, &theta, Sampling::Point, Kind::Elliptical, &noise, hess);
+            let b = evaluate_h(
+                &mut ws,
+                &theta,
+                Sampling::Point,
+                Kind::Elliptical,
+                &noise,
+                hess,
+            );
             assert_eq!(
                 (a.cost, a.ssr, a.gram, a.grad, a.rh, a.has_rh),
                 (b.cost, b.ssr, b.gram, b.grad, b.rh, b.has_rh)

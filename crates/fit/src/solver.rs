@@ -275,20 +275,20 @@ pub(crate) struct Outcome {
 const LAMBDA_START: f64 = 1e-3;
 /// Solves whose tolerance is at most this take Newton steps (the final fits, tolerance 0.05 by
 /// default); intermediate fits (tolerance 1, from the window's moments several standard
-/// deviations away) converge in about two Gauss-Newton steps, where Newton's overshoot
-/// (issue 17, bench/trackpy's peak-SNR-6 scene: 4,811 → 7,107 evaluations with 2,009 steps
-/// rejected).
+/// deviations away) converge in about two Gauss-Newton steps, where Newton's steps overshot
+/// (issue 17, bench/trackpy's peak-SNR-6 scene: 4,811 → 7,107 trial evaluations with 2,009
+/// steps rejected).
 const NEWTON_TOLERANCE_MAX: f64 = 0.5;
 /// Longest Newton step taken (its length² in the Fisher metric, i.e. 2 standard deviations):
 /// beyond it the quadratic model of a start far away is not trusted and the step is
 /// Gauss-Newton's.
 const NEWTON_REACH2: f64 = 4.0;
-/// Newton steps only where the amplitude's signal-to-noise ratio at the start (`A √N_AA`, the
-/// amplitude over its bound with the other parameters known) is below this: Gauss-Newton's
-/// linear rate is the size of the residual's term against `N`, which falls as 1/SNR; at the
-/// peak-SNR-6 scene's (10-15) its steps shrink by ~0.4 each (3.3 per final fit, 1.0 with
-/// Newton's); at σ 1.25 px and peak SNR ~40 (110-120) and on the real sample (90-170) both
-/// take the same evaluations, and the residual's moments would only cost.
+/// Newton steps only where the amplitude's signal-to-noise ratio at the start (about the
+/// amplitude over its bound with the other parameters known; [`takes_newton`]) is below this:
+/// Gauss-Newton's linear rate is the size of the residual's term against `N`, which falls as
+/// 1/SNR; at the peak-SNR-6 scene's (10-15) its steps shrink by ~0.4 each (3.3 evaluations per
+/// final fit, 2.1 with Newton's); at σ 1.25 px and peak SNR ~40 (110-120) and on the real
+/// sample (90-170) both take the same evaluations, and the residual's moments would only cost.
 const NEWTON_Z_MAX: f64 = 30.0;
 /// Nor below this SNR (near the detection limit, where a fit's amplitude may end at 0 and the
 /// presence test decides: Gauss-Newton's path there as before; pipeline test `faint`'s peak SNR
