@@ -1247,8 +1247,9 @@ pub(crate) fn normal_equations(
 /// The Newton matrix `H = N − R` of the free parameters at the pass's θ (n × n in the top left;
 /// `nm` is the pass's normal matrix `N`), with `R = Σ w r ∂²μ/∂θ∂θᵀ` the second-order term
 /// that Gauss-Newton leaves out: `½∇² Σ w r² = H` for the solve's fixed weights. `None` for a
-/// pass without the residual's moments of degree 3 and 4 where the kind's shape is free, for
-/// the linear kind (R = 0), and where an entry is not finite.
+/// pass without the residual's moments of degree 3 and 4 where the kind's shape is free, and
+/// for the linear kind (R = 0); an entry that is not finite is left for the factorisation to
+/// refuse (the step is then Gauss-Newton's).
 ///
 /// With `μ = B + A·E`, `E = exp(−Q/2)`, `Q = aX² + 2bXY + cY²`: `∂²μ/∂p∂q = A·E·(¼ Q_p Q_q − ½
 /// Q_pq)` for p, q among the centre and shape, `∂²μ/∂A∂q = −½ Q_q E`, zero for the rest. Every
