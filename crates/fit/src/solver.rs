@@ -209,7 +209,75 @@ pub(crate) fn solve_damped(
     n: usize,
     lambda: f64,
 ) -> Option<[f64; 7]> {
-    Factor::new(nm, n, lambda).map(|f| f.solve(g))
+    // the factor's arithmetic and the solve's, without the factor as a value (it was built,
+    // wrapped in an `Option` and copied for one solve: a tenth of the time of `locate` went
+    // to copies of such arrays)
+    match n {
+        7 => solve_damped_n::<7>(nm, g, lambda),
+        6 => solve_damped_n::<6>(nm, g, lambda),
+        5 => solve_damped_n::<5>(nm, g, lambda),
+        4 => solve_damped_n::<4>(nm, g, lambda),
+        3 => solve_damped_n::<3>(nm, g, lambda),
+        2 => solve_damped_n::<2>(nm, g, lambda),
+        1 => solve_damped_n::<1>(nm, g, lambda),
+        _ => None,
+    }
+}
+
+/// [`Factor::new`] then [`Factor::solve`] for `N` unknowns, in place (the same operations in
+/// the same order: the same bits).
+fn solve_damped_n<const N: usize>(
+    nm: &[[f64; 7]; 7],
+    g: &[f64; 7],
+    lambda: f64,
+) -> Option<[f64; 7]> {
+    for (k, row) in nm.iter().enumerate().take(N) {
+        let v = row[k];
+        if !(v > 0.0 && v.is_finite()) {
+            return None;
+        }
+    }
+    let mut l = [[0.0; N]; N];
+    let mut ld = [[0.0; N]; N];
+    let mut inv_d = [0.0; N];
+    for j in 0..N {
+        let mut p = nm[j][j] * (1.0 + lambda);
+        for k in 0..j {
+            p -= ld[j][k] * l[j][k];
+        }
+        if p.is_nan() || p <= 1e-14 * nm[j][j] {
+            return None;
+        }
+        let inv = 1.0 / p;
+        inv_d[j] = inv;
+        for i in j + 1..N {
+            let mut s = nm[i][j];
+            for k in 0..j {
+                s -= ld[i][k] * l[j][k];
+            }
+            ld[i][j] = s;
+            l[i][j] = s * inv;
+        }
+    }
+    let mut x = [0.0; 7];
+    for i in 0..N {
+        let mut s = g[i];
+        for k in 0..i {
+            s -= l[i][k] * x[k];
+        }
+        x[i] = s;
+    }
+    for i in 0..N {
+        x[i] *= inv_d[i];
+    }
+    for i in (0..N).rev() {
+        let mut s = x[i];
+        for k in i + 1..N {
+            s -= l[k][i] * x[k];
+        }
+        x[i] = s;
+    }
+    Some(x)
 }
 
 /// `sqrt((N⁻¹)₀₀)`, `sqrt((N⁻¹)₁₁)`: the bound of x0 and y0 (both free parameters come first).
@@ -726,6 +794,9 @@ mod tests {
             let g: [f64; 7] = std::array::from_fn(|k| (k as f64 + 1.0) * 10f64.powi(k as i32 - 3));
             for lambda in [0.0, 1e-3, 10.0] {
                 let x = solve_damped(&nm, &g, n, lambda).expect("positive definite");
+                // the fused solve is the factor's, bit for bit
+                let f = Factor::new(&nm, n, lambda).expect("positive definite");
+                assert_eq!(x, f.solve(&g), "n {n} λ {lambda}");
                 for i in 0..n {
                     let r: f64 = (0..n)
                         .map(|j| (nm[i][j] + if i == j { lambda * nm[i][i] } else { 0.0 }) * x[j])
