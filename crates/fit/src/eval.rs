@@ -1264,8 +1264,7 @@ pub(crate) fn newton_matrix(
     pass: &Pass,
     nm: &[[f64; 7]; 7],
 ) -> Option<[[f64; 7]; 7]> {
-    let shape_free = matches!(kind, Kind::Elliptical | Kind::AxisAligned | Kind::Circular);
-    if kind == Kind::Linear || (shape_free && !pass.has_rh) {
+    if kind == Kind::Linear || (kind.hess() && !pass.has_rh) {
         return None;
     }
     // (a held shape uses the moments of degree ≤ 2 only: its rows of degree 3, 4 are unread)

@@ -110,36 +110,9 @@ impl Factor {
     }
 
     fn new_n<const N: usize>(nm: &[[f64; 7]; 7], lambda: f64) -> Option<Factor> {
-        for (k, row) in nm.iter().enumerate().take(N) {
-            let v = row[k];
-            if !(v > 0.0 && v.is_finite()) {
-                return None;
-            }
-        }
         let mut l = [[0.0; 7]; 7];
-        // ld[i][k] = L_ik D_k
-        let mut ld = [[0.0; 7]; 7];
         let mut inv_d = [0.0; 7];
-        for j in 0..N {
-            let mut p = nm[j][j] * (1.0 + lambda);
-            for k in 0..j {
-                p -= ld[j][k] * l[j][k];
-            }
-            if p.is_nan() || p <= 1e-14 * nm[j][j] {
-                return None;
-            }
-            let inv = 1.0 / p;
-            inv_d[j] = inv;
-            for i in j + 1..N {
-                let mut s = nm[i][j];
-                for k in 0..j {
-                    s -= ld[i][k] * l[j][k];
-                }
-                ld[i][j] = s;
-                l[i][j] = s * inv;
-            }
-        }
-        Some(Factor { l, inv_d, n: N })
+        ldlt_n::<N, 7>(nm, lambda, &mut l, &mut inv_d).then_some(Factor { l, inv_d, n: N })
     }
 
     pub fn solve(&self, g: &[f64; 7]) -> [f64; 7] {
@@ -179,27 +152,76 @@ impl Factor {
     }
 
     fn solve_n<const N: usize>(&self, g: &[f64; 7]) -> [f64; 7] {
-        let l = &self.l;
-        let mut x = [0.0; 7];
-        for i in 0..N {
-            let mut s = g[i];
-            for k in 0..i {
-                s -= l[i][k] * x[k];
-            }
-            x[i] = s;
-        }
-        for i in 0..N {
-            x[i] *= self.inv_d[i];
-        }
-        for i in (0..N).rev() {
-            let mut s = x[i];
-            for k in i + 1..N {
-                s -= l[k][i] * x[k];
-            }
-            x[i] = s;
-        }
-        x
+        ldlt_solve_n::<N, 7>(&self.l, &self.inv_d, g)
     }
+}
+
+/// The `L D Lᵀ` factor of the leading `N × N` block of `N + λ diag N` into `l` (unit lower,
+/// below the diagonal) and `inv_d` (the reciprocal pivots), arrays of any size `M ≥ N`;
+/// `false` under [`Factor::new`]'s conditions.
+#[inline(always)]
+fn ldlt_n<const N: usize, const M: usize>(
+    nm: &[[f64; 7]; 7],
+    lambda: f64,
+    l: &mut [[f64; M]; M],
+    inv_d: &mut [f64; M],
+) -> bool {
+    for (k, row) in nm.iter().enumerate().take(N) {
+        let v = row[k];
+        if !(v > 0.0 && v.is_finite()) {
+            return false;
+        }
+    }
+    // ld[i][k] = L_ik D_k
+    let mut ld = [[0.0; N]; N];
+    for j in 0..N {
+        let mut p = nm[j][j] * (1.0 + lambda);
+        for k in 0..j {
+            p -= ld[j][k] * l[j][k];
+        }
+        if p.is_nan() || p <= 1e-14 * nm[j][j] {
+            return false;
+        }
+        let inv = 1.0 / p;
+        inv_d[j] = inv;
+        for i in j + 1..N {
+            let mut s = nm[i][j];
+            for k in 0..j {
+                s -= ld[i][k] * l[j][k];
+            }
+            ld[i][j] = s;
+            l[i][j] = s * inv;
+        }
+    }
+    true
+}
+
+/// `(L D Lᵀ)⁻¹ g` for the factor of [`ldlt_n`].
+#[inline(always)]
+fn ldlt_solve_n<const N: usize, const M: usize>(
+    l: &[[f64; M]; M],
+    inv_d: &[f64; M],
+    g: &[f64; 7],
+) -> [f64; 7] {
+    let mut x = [0.0; 7];
+    for i in 0..N {
+        let mut s = g[i];
+        for k in 0..i {
+            s -= l[i][k] * x[k];
+        }
+        x[i] = s;
+    }
+    for i in 0..N {
+        x[i] *= inv_d[i];
+    }
+    for i in (0..N).rev() {
+        let mut s = x[i];
+        for k in i + 1..N {
+            s -= l[k][i] * x[k];
+        }
+        x[i] = s;
+    }
+    x
 }
 
 /// Solves `(N + λ diag N) δ = g` for the leading `n × n` block. `None` if not positive definite.
@@ -224,60 +246,15 @@ pub(crate) fn solve_damped(
     }
 }
 
-/// [`Factor::new`] then [`Factor::solve`] for `N` unknowns, in place (the same operations in
-/// the same order: the same bits).
+/// [`Factor::new`] then [`Factor::solve`] for `N` unknowns, on local arrays (no factor value).
 fn solve_damped_n<const N: usize>(
     nm: &[[f64; 7]; 7],
     g: &[f64; 7],
     lambda: f64,
 ) -> Option<[f64; 7]> {
-    for (k, row) in nm.iter().enumerate().take(N) {
-        let v = row[k];
-        if !(v > 0.0 && v.is_finite()) {
-            return None;
-        }
-    }
     let mut l = [[0.0; N]; N];
-    let mut ld = [[0.0; N]; N];
     let mut inv_d = [0.0; N];
-    for j in 0..N {
-        let mut p = nm[j][j] * (1.0 + lambda);
-        for k in 0..j {
-            p -= ld[j][k] * l[j][k];
-        }
-        if p.is_nan() || p <= 1e-14 * nm[j][j] {
-            return None;
-        }
-        let inv = 1.0 / p;
-        inv_d[j] = inv;
-        for i in j + 1..N {
-            let mut s = nm[i][j];
-            for k in 0..j {
-                s -= ld[i][k] * l[j][k];
-            }
-            ld[i][j] = s;
-            l[i][j] = s * inv;
-        }
-    }
-    let mut x = [0.0; 7];
-    for i in 0..N {
-        let mut s = g[i];
-        for k in 0..i {
-            s -= l[i][k] * x[k];
-        }
-        x[i] = s;
-    }
-    for i in 0..N {
-        x[i] *= inv_d[i];
-    }
-    for i in (0..N).rev() {
-        let mut s = x[i];
-        for k in i + 1..N {
-            s -= l[k][i] * x[k];
-        }
-        x[i] = s;
-    }
-    Some(x)
+    ldlt_n::<N, N>(nm, lambda, &mut l, &mut inv_d).then(|| ldlt_solve_n::<N, N>(&l, &inv_d, g))
 }
 
 /// `sqrt((N⁻¹)₀₀)`, `sqrt((N⁻¹)₁₁)`: the bound of x0 and y0 (both free parameters come first).
@@ -422,6 +399,7 @@ pub(crate) fn solve_fast(
         max_iterations,
         tolerance,
         reweight,
+        newton,
     );
     for _ in 0..3 {
         if !reweight || !out.status.is_ok() {
@@ -436,13 +414,13 @@ pub(crate) fn solve_fast(
         }
         std::mem::swap(&mut ws.w_cur, &mut ws.w_new);
         // the pass at the solution with the new weights: the last evaluation's model summed
-        // again, or a new evaluation
-        let (at, pass) = match model_at {
-            Some(at) => (at, resum(ws, &at, sampling, kind, noise, newton)),
-            None => (
-                out.theta,
-                evaluate_h(ws, &out.theta, sampling, kind, noise, newton),
-            ),
+        // again, or a new evaluation (with the moments the repeated solve's Newton steps need,
+        // decided there)
+        let at = model_at.unwrap_or(out.theta);
+        let newton = takes_newton(tolerance, sampling, kind, &at, noise);
+        let pass = match model_at {
+            Some(_) => resum(ws, &at, sampling, kind, noise, newton),
+            None => evaluate_h(ws, &at, sampling, kind, noise, newton),
         };
         if change <= RESOLVE {
             // the estimate moves by a second-order amount only: keep it, but give the Fisher
@@ -466,6 +444,7 @@ pub(crate) fn solve_fast(
             max_iterations.saturating_sub(out.iterations).max(1),
             tolerance,
             reweight,
+            newton,
         );
         out = Outcome {
             iterations: out.iterations + again.iterations,
@@ -496,7 +475,8 @@ fn takes_newton(
 }
 
 /// One Levenberg-Marquardt solve from `theta0` (`first`: the pass at `theta0` with the current
-/// weights, if already made). Also returns the θ of the model that the workspace holds from
+/// weights, if already made; `newton`: [`takes_newton`] at `theta0`, with which `first` was
+/// made, so that every pass of the solve has the moments its Newton matrix needs). Also returns the θ of the model that the workspace holds from
 /// the last evaluation where that is the solution or a step shorter than the tolerance from it.
 #[allow(clippy::too_many_arguments)]
 fn lm_loop(
@@ -510,10 +490,10 @@ fn lm_loop(
     max_iterations: u32,
     tolerance: f64,
     reweight: bool,
+    newton: bool,
 ) -> (Outcome, Option<Theta>) {
     let n = kind.n_free();
     let mut theta = theta0;
-    let newton = takes_newton(tolerance, sampling, kind, &theta, noise);
     let mut pass: Pass =
         first.unwrap_or_else(|| evaluate_h(ws, &theta, sampling, kind, noise, newton));
     // whether the workspace's model (the last evaluation) is at θ
