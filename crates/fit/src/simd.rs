@@ -458,42 +458,6 @@ impl WithSimd for ExpRows<'_> {
     }
 }
 
-/// The upper triangle of `m += wt · g gᵀ`: `m` is `dim × dim` row-major (only `m[r][c]`,
-/// `c ≥ r`, touched), `g` has `dim` values. Row `r` gets `(wt · g_r) · g_c` added to its entry
-/// `c`, a product then a sum (no fused multiply-add), on every path: the same bits as the plain
-/// loop.
-pub(crate) struct RankOneUpper<'a> {
-    pub m: &'a mut [f64],
-    pub g: &'a [f64],
-    pub wt: f64,
-    pub dim: usize,
-}
-
-pub(crate) fn rank_one_upper(arch: Arch, k: RankOneUpper) {
-    arch.dispatch(k)
-}
-
-impl WithSimd for RankOneUpper<'_> {
-    type Output = ();
-
-    #[inline(always)]
-    fn with_simd<S: Simd>(self, simd: S) {
-        let RankOneUpper { m, g, wt, dim } = self;
-        for (r, row) in m.chunks_exact_mut(dim).take(dim).enumerate() {
-            let gr = wt * g[r];
-            let (rh, rt) = S::as_mut_simd_f64s(&mut row[r..dim]);
-            let (gh, gt) = S::as_simd_f64s(&g[r..dim]);
-            let s = simd.splat_f64s(gr);
-            for (o, gc) in rh.iter_mut().zip(gh) {
-                *o = simd.add_f64s(*o, simd.mul_f64s(s, *gc));
-            }
-            for (o, gc) in rt.iter_mut().zip(gt) {
-                *o += gr * gc;
-            }
-        }
-    }
-}
-
 /// One row of the coupling map's sweeps ([`crate::coupling`]): `v = own − Σ_links Σ_c m[c] · x_c`
 /// over the links in order, each link's columns `c` in order (`m` its matrix by columns, each
 /// padded to 8 rows, `x = now[nb]` the neighbour's correction), a product then a difference per
@@ -920,32 +884,6 @@ mod tests {
                     },
                 );
                 assert_eq!(v, plain, "{links} links");
-            }
-        }
-        // the rank-one update of an upper triangle, against the plain loop
-        for dim in [1, 2, 3, 7, 13, 19, 25, 31] {
-            let g: Vec<f64> = (0..dim).map(|_| rng.random::<f64>() - 0.5).collect();
-            let start: Vec<f64> = (0..dim * dim).map(|_| rng.random::<f64>()).collect();
-            let wt = 0.37;
-            let mut plain = start.clone();
-            for r in 0..dim {
-                let gr = wt * g[r];
-                for c in r..dim {
-                    plain[r * dim + c] += gr * g[c];
-                }
-            }
-            for arch in [fast, Arch::Scalar] {
-                let mut m = start.clone();
-                rank_one_upper(
-                    arch,
-                    RankOneUpper {
-                        m: &mut m,
-                        g: &g,
-                        wt,
-                        dim,
-                    },
-                );
-                assert_eq!(m, plain, "dim {dim}");
             }
         }
         for (w, h) in [(1, 1), (3, 5), (4, 4), (7, 9), (9, 9), (13, 11), (17, 3)] {

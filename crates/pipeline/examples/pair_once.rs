@@ -10,14 +10,32 @@
 //! With `PAIR_ONCE_NO_FRAME` set it stops after the reference side: the instructions of one frame
 //! are those of a run without it less those of a run with it (`valgrind --tool=callgrind`, one
 //! thread), a count the machine's load does not disturb. With `PAIR_ONCE_FRAMES=N` the frame is
-//! processed N times (a profile then shows mostly the frame's work).
+//! processed N times (a profile then shows mostly the frame's work). With `PAIR_ONCE_POOL=N`
+//! everything runs inside a rayon pool of N threads (`install`), as `run` does: no parallel
+//! loop is then handed over from the main thread (whose wake-ups a profile of one thread
+//! would otherwise show).
 
 use bostrack_fit::Solver;
 use bostrack_pipeline::{Plan, Quantities, ReferenceContext, load_config, process_frame};
 use std::path::PathBuf;
 use std::time::Instant;
 
-fn main() -> Result<(), Box<dyn std::error::Error>> {
+type Res = Result<(), Box<dyn std::error::Error + Send + Sync>>;
+
+fn main() -> Res {
+    match std::env::var("PAIR_ONCE_POOL")
+        .ok()
+        .and_then(|v| v.parse().ok())
+    {
+        Some(n) => rayon::ThreadPoolBuilder::new()
+            .num_threads(n)
+            .build()?
+            .install(run),
+        None => run(),
+    }
+}
+
+fn run() -> Res {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let config = args.first().map(PathBuf::from).unwrap_or_else(|| {
         PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../testdata/bos-sample.toml")
