@@ -103,7 +103,7 @@ const STRIP: usize = 32;
 /// rounding as a tap-by-tap accumulation over a whole row), with the partial sums of a strip
 /// of columns kept in registers. The horizontal pass reads one padded row at offsets
 /// `0, 1, 2, …`; the vertical pass reads the rows of the taps (edges replicated by the caller).
-#[inline]
+#[inline(always)]
 fn correlate(src: &[f32], offs: &[usize], k: &[f32], out: &mut [f32]) {
     let n = out.len();
     let mut x = 0;
@@ -129,6 +129,7 @@ fn correlate(src: &[f32], offs: &[usize], k: &[f32], out: &mut [f32]) {
 
 /// Subtracts from row `y` of the output the mean of J over the clipped `(2·half + 1)²` box
 /// around each pixel, from the prefix sums `prefix` (length `w + 1`) of that row's column sums.
+#[inline(always)]
 fn subtract_box_row(prefix: &[f64], h: usize, half: usize, y: usize, o: &mut [f32]) {
     let w = o.len();
     let side = 2 * half + 1;
@@ -160,6 +161,7 @@ fn subtract_box_row(prefix: &[f64], h: usize, half: usize, y: usize, o: &mut [f3
 
 /// Row `yb` of `sign · I` binned by `k x k` blocks (mean), non-finite samples replaced by
 /// `fill`, into `out` (length `width / k`).
+#[inline(always)]
 fn binned_row(
     img: &Image,
     sign: f64,
@@ -218,6 +220,7 @@ fn local_max_generic(d: &[f32], w: usize, h: usize, x: usize, y: usize) -> bool 
 
 /// Local-maximum flags of row `y` of `d` ([`local_max_generic`]); the interior pixels by a
 /// branch-free pass over the three rows.
+#[inline(always)]
 fn row_maxima(d: &[f32], w: usize, h: usize, y: usize, out: &mut [bool]) {
     if y == 0 || y + 1 >= h || w < 3 {
         for (x, o) in out.iter_mut().enumerate() {
@@ -281,7 +284,7 @@ struct Binned<'a> {
 }
 
 impl Binned<'_> {
-    #[inline]
+    #[inline(always)]
     fn row(&self, y: usize, out: &mut [f32]) {
         binned_row(
             self.img,
@@ -301,142 +304,166 @@ impl Binned<'_> {
 /// rows minus the box mean. The column sums are first brought to row `y0` by the very sequence
 /// of additions and subtractions a pass from the top would make, so a band's rows are bit for
 /// bit those of the whole-image pass.
-#[allow(clippy::too_many_arguments)]
-fn dot_map_band(
-    src: &Binned,
+///
+/// Run through `pulp`'s dispatch ([`bostrack_core::simd_arch`]): the same scalar code, which
+/// the compiler vectorises for the widest instruction set the CPU has (AVX2: 8 columns of f32
+/// per instruction where the baseline has 4); the same operations in the same order on every
+/// path, so the same bits (test `the_dispatched_band_is_the_portable_one`).
+fn dot_map_band(arch: pulp::Arch, band: &Band, y0: usize, out: &mut [f32]) {
+    bostrack_core::dispatch(arch, || band.rows(y0, out))
+}
+
+/// What the bands of a dot map share.
+struct Band<'a> {
+    src: &'a Binned<'a>,
     w: usize,
     h: usize,
-    kern: &[f32],
+    kern: &'a [f32],
     half: usize,
-    y0: usize,
-    out: &mut [f32],
-) {
-    let y_end = y0 + out.len() / w;
-    let r = kern.len() / 2;
-    // Ring of J and H rows: J is needed from row y - half - 1 to y + 1 + max(half, r), H from
-    // y - r to the same.
-    let ahead = half.max(r);
-    let cap = half + r + ahead + 3;
-    let mut jring = vec![0.0f32; cap * w];
-    let mut hring = vec![0.0f32; cap * w];
-    let mut pad = vec![0.0f32; w + 2 * r];
-    let taps: Vec<usize> = (0..kern.len()).collect();
-    let first = y0.saturating_sub(half + 1).min(y0.saturating_sub(r));
-    let mut made = first; // J and H rows computed so far (from `first`)
-    let mut make_rows = |upto: usize, jring: &mut [f32], hring: &mut [f32]| {
-        while made <= upto.min(h - 1) {
-            let s = (made % cap) * w;
-            let jr = &mut jring[s..s + w];
-            src.row(made, jr);
-            pad[..r].fill(jr[0]);
-            pad[r..r + w].copy_from_slice(jr);
-            pad[r + w..].fill(jr[w - 1]);
-            correlate(&pad, &taps, kern, &mut hring[s..s + w]);
-            made += 1;
+}
+
+impl Band<'_> {
+    /// [`dot_map_band`]'s work (inlined into the dispatched call, so that it is vectorised
+    /// with it).
+    #[inline(always)]
+    fn rows(&self, y0: usize, out: &mut [f32]) {
+        let Band {
+            src,
+            w,
+            h,
+            kern,
+            half,
+        } = *self;
+        let y_end = y0 + out.len() / w;
+        let r = kern.len() / 2;
+        // Ring of J and H rows: J is needed from row y - half - 1 to y + 1 + max(half, r), H from
+        // y - r to the same.
+        let ahead = half.max(r);
+        let cap = half + r + ahead + 3;
+        let mut jring = vec![0.0f32; cap * w];
+        let mut hring = vec![0.0f32; cap * w];
+        let mut pad = vec![0.0f32; w + 2 * r];
+        let taps: Vec<usize> = (0..kern.len()).collect();
+        let first = y0.saturating_sub(half + 1).min(y0.saturating_sub(r));
+        let mut made = first; // J and H rows computed so far (from `first`)
+        // (a loop, not a closure: inlined into the dispatched body, it is vectorised with it)
+        macro_rules! make_rows {
+            ($upto:expr) => {
+                while made <= ($upto).min(h - 1) {
+                    let s = (made % cap) * w;
+                    let jr = &mut jring[s..s + w];
+                    src.row(made, jr);
+                    pad[..r].fill(jr[0]);
+                    pad[r..r + w].copy_from_slice(jr);
+                    pad[r + w..].fill(jr[w - 1]);
+                    correlate(&pad, &taps, kern, &mut hring[s..s + w]);
+                    made += 1;
+                }
+            };
         }
-    };
-    let row_of = |t: usize| -> std::ops::Range<usize> {
-        let s = (t % cap) * w;
-        s..s + w
-    };
-    let zeros = vec![0.0f32; w];
-    // Column sums of J over rows 0..=half, then the updates of rows 1..y0 (row yy gains row
-    // yy + half and loses row yy - half - 1; a zero row where there is none: adding +0 to a
-    // sum that started at +0 changes nothing).
-    let mut col = vec![0.0f64; w];
-    {
-        let (mut ja, mut js) = (vec![0.0f32; w], vec![0.0f32; w]);
-        for yy in 0..=half.min(h - 1) {
-            src.row(yy, &mut ja);
-            for (c, v) in col.iter_mut().zip(&ja) {
-                *c += *v as f64;
+        let row_of = |t: usize| -> std::ops::Range<usize> {
+            let s = (t % cap) * w;
+            s..s + w
+        };
+        let zeros = vec![0.0f32; w];
+        // Column sums of J over rows 0..=half, then the updates of rows 1..y0 (row yy gains row
+        // yy + half and loses row yy - half - 1; a zero row where there is none: adding +0 to a
+        // sum that started at +0 changes nothing).
+        let mut col = vec![0.0f64; w];
+        {
+            let (mut ja, mut js) = (vec![0.0f32; w], vec![0.0f32; w]);
+            for yy in 0..=half.min(h - 1) {
+                src.row(yy, &mut ja);
+                for (c, v) in col.iter_mut().zip(&ja) {
+                    *c += *v as f64;
+                }
+            }
+            for yy in 1..y0 {
+                let add = if yy + half < h {
+                    src.row(yy + half, &mut ja);
+                    &ja[..]
+                } else {
+                    &zeros[..]
+                };
+                let sub = if yy > half {
+                    src.row(yy - half - 1, &mut js);
+                    &js[..]
+                } else {
+                    &zeros[..]
+                };
+                for ((c, a), s) in col.iter_mut().zip(add).zip(sub) {
+                    *c = *c + *a as f64 - *s as f64;
+                }
             }
         }
-        for yy in 1..y0 {
-            let add = if yy + half < h {
-                src.row(yy + half, &mut ja);
-                &ja[..]
-            } else {
-                &zeros[..]
+        let mut col2 = vec![0.0f64; w];
+        let (mut pa, mut pb) = (vec![0.0f64; w + 1], vec![0.0f64; w + 1]);
+        let mut offs = vec![0usize; kern.len()];
+        // Rows in pairs, so that the two rows' prefix sums (each a chain of dependent additions)
+        // run side by side.
+        let mut y = y0;
+        while y < y_end {
+            let pair = y + 1 < y_end;
+            let last = if pair { y + 1 } else { y };
+            make_rows!(last + ahead);
+            // Vertical Gaussian pass (edge rows replicated).
+            for yy in y..=last {
+                for (t, off) in offs.iter_mut().enumerate() {
+                    *off = row_of((yy + t).saturating_sub(r).min(h - 1)).start;
+                }
+                let o = &mut out[(yy - y0) * w..(yy - y0 + 1) * w];
+                correlate(&hring, &offs, kern, o);
+            }
+            // Box mean of J over the clipped (2·half + 1)² box: the column sums' update, then a
+            // prefix sum along the row.
+            let updates = |yy: usize| -> (&[f32], &[f32]) {
+                if yy == 0 {
+                    return (&zeros, &zeros);
+                }
+                let add = if yy + half < h {
+                    &jring[row_of(yy + half)]
+                } else {
+                    &zeros[..]
+                };
+                let sub = if yy > half {
+                    &jring[row_of(yy - half - 1)]
+                } else {
+                    &zeros[..]
+                };
+                (add, sub)
             };
-            let sub = if yy > half {
-                src.row(yy - half - 1, &mut js);
-                &js[..]
-            } else {
-                &zeros[..]
-            };
-            for ((c, a), s) in col.iter_mut().zip(add).zip(sub) {
+            let (a_add, a_sub) = updates(y);
+            for ((c, a), s) in col.iter_mut().zip(a_add).zip(a_sub) {
                 *c = *c + *a as f64 - *s as f64;
             }
-        }
-    }
-    let mut col2 = vec![0.0f64; w];
-    let (mut pa, mut pb) = (vec![0.0f64; w + 1], vec![0.0f64; w + 1]);
-    let mut offs = vec![0usize; kern.len()];
-    // Rows in pairs, so that the two rows' prefix sums (each a chain of dependent additions)
-    // run side by side.
-    let mut y = y0;
-    while y < y_end {
-        let pair = y + 1 < y_end;
-        let last = if pair { y + 1 } else { y };
-        make_rows(last + ahead, &mut jring, &mut hring);
-        // Vertical Gaussian pass (edge rows replicated).
-        for yy in y..=last {
-            for (t, off) in offs.iter_mut().enumerate() {
-                *off = row_of((yy + t).saturating_sub(r).min(h - 1)).start;
-            }
-            let o = &mut out[(yy - y0) * w..(yy - y0 + 1) * w];
-            correlate(&hring, &offs, kern, o);
-        }
-        // Box mean of J over the clipped (2·half + 1)² box: the column sums' update, then a
-        // prefix sum along the row.
-        let updates = |yy: usize| -> (&[f32], &[f32]) {
-            if yy == 0 {
-                return (&zeros, &zeros);
-            }
-            let add = if yy + half < h {
-                &jring[row_of(yy + half)]
+            if pair {
+                let (b_add, b_sub) = updates(y + 1);
+                for (((c2, c), a), s) in col2.iter_mut().zip(&col).zip(b_add).zip(b_sub) {
+                    *c2 = *c + *a as f64 - *s as f64;
+                }
+                let (mut acc_a, mut acc_b) = (0.0, 0.0);
+                for x in 0..w {
+                    acc_a += col[x];
+                    acc_b += col2[x];
+                    pa[x + 1] = acc_a;
+                    pb[x + 1] = acc_b;
+                }
+                std::mem::swap(&mut col, &mut col2);
             } else {
-                &zeros[..]
-            };
-            let sub = if yy > half {
-                &jring[row_of(yy - half - 1)]
-            } else {
-                &zeros[..]
-            };
-            (add, sub)
-        };
-        let (a_add, a_sub) = updates(y);
-        for ((c, a), s) in col.iter_mut().zip(a_add).zip(a_sub) {
-            *c = *c + *a as f64 - *s as f64;
-        }
-        if pair {
-            let (b_add, b_sub) = updates(y + 1);
-            for (((c2, c), a), s) in col2.iter_mut().zip(&col).zip(b_add).zip(b_sub) {
-                *c2 = *c + *a as f64 - *s as f64;
+                let mut acc_a = 0.0;
+                for x in 0..w {
+                    acc_a += col[x];
+                    pa[x + 1] = acc_a;
+                }
             }
-            let (mut acc_a, mut acc_b) = (0.0, 0.0);
-            for x in 0..w {
-                acc_a += col[x];
-                acc_b += col2[x];
-                pa[x + 1] = acc_a;
-                pb[x + 1] = acc_b;
+            let o = &mut out[(y - y0) * w..(last - y0 + 1) * w];
+            let (oa, ob) = o.split_at_mut(w);
+            subtract_box_row(&pa, h, half, y, oa);
+            if pair {
+                subtract_box_row(&pb, h, half, y + 1, ob);
             }
-            std::mem::swap(&mut col, &mut col2);
-        } else {
-            let mut acc_a = 0.0;
-            for x in 0..w {
-                acc_a += col[x];
-                pa[x + 1] = acc_a;
-            }
+            y = last + 1;
         }
-        let o = &mut out[(y - y0) * w..(last - y0 + 1) * w];
-        let (oa, ob) = o.split_at_mut(w);
-        subtract_box_row(&pa, h, half, y, oa);
-        if pair {
-            subtract_box_row(&pb, h, half, y + 1, ob);
-        }
-        y = last + 1;
     }
 }
 
@@ -483,15 +510,27 @@ impl DotMap {
             k,
         };
         let band = h.div_ceil(bands.clamp(1, h));
+        let arch = bostrack_core::simd_arch();
+        let job = Band {
+            src: &src,
+            w,
+            h,
+            kern: &kern,
+            half: p.box_half,
+        };
         let mut data = vec![0.0f32; w * h];
         data.par_chunks_mut(band * w)
             .enumerate()
-            .for_each(|(b, out)| dot_map_band(&src, w, h, &kern, p.box_half, b * band, out));
+            .for_each(|(b, out)| dot_map_band(arch, &job, b * band, out));
         let mut lmax = vec![false; w * h];
         lmax.par_chunks_mut(w)
             .enumerate()
             .with_min_len(32)
-            .for_each(|(y, o)| row_maxima(&data, w, h, y, o));
+            .for_each(|(y, o)| {
+                bostrack_core::dispatch(bostrack_core::simd_arch(), || {
+                    row_maxima(&data, w, h, y, o)
+                })
+            });
         DotMap {
             d: Plane { w, h, data },
             k,
@@ -917,6 +956,50 @@ mod tests {
                         );
                     }
                 }
+            }
+        }
+    }
+
+    /// The band on the dispatched instruction set (AVX2 where the CPU has it) and on the
+    /// portable path give the same bits (the three-pass reference above checks the dispatched
+    /// one).
+    #[test]
+    fn the_dispatched_band_is_the_portable_one() {
+        for (w, h, k, bad) in [(97usize, 41usize, 1usize, false), (130, 40, 2, true)] {
+            let img = Image::from_fn(w, h, |x, y| {
+                let v = 150.0
+                    + 300.0 * ((x as f64 * 0.9).sin() * (y as f64 * 0.7).cos()).powi(2)
+                    + ((x * 7919 + y * 104729) % 61) as f64;
+                if bad && (x + 3 * y) % 53 == 0 {
+                    f64::INFINITY
+                } else {
+                    v
+                }
+            });
+            let src = Binned {
+                img: &img,
+                sign: -1.0,
+                fill: 222.0,
+                nonfinite: bad,
+                k,
+            };
+            let kern = gaussian_kernel(1.4);
+            let (bw, bh) = (w / k, h / k);
+            for y0 in [0, 5, bh / 2] {
+                let rows = (bh - y0).min(9);
+                let mut a = vec![0.0f32; rows * bw];
+                let mut b = vec![0.0f32; rows * bw];
+                let job = Band {
+                    src: &src,
+                    w: bw,
+                    h: bh,
+                    kern: &kern,
+                    half: 3,
+                };
+                dot_map_band(bostrack_core::simd_arch(), &job, y0, &mut a);
+                dot_map_band(pulp::Arch::Scalar, &job, y0, &mut b);
+                let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                assert_eq!(bits(&a), bits(&b), "{w}x{h} k {k} from row {y0}");
             }
         }
     }

@@ -9,18 +9,11 @@
 //! forces the portable path, for benchmarks against it.
 
 use pulp::{Arch, Simd, WithSimd};
-use std::sync::OnceLock;
 
-/// The instruction set the kernels run on: the best the CPU has unless `BOSTRACK_SIMD=portable`.
+/// The instruction set the kernels run on ([`bostrack_core::simd_arch`]: the best the CPU has
+/// unless `BOSTRACK_SIMD=portable`).
 pub(crate) fn arch() -> Arch {
-    static ARCH: OnceLock<Arch> = OnceLock::new();
-    *ARCH.get_or_init(|| {
-        if std::env::var("BOSTRACK_SIMD").is_ok_and(|v| v == "portable") {
-            Arch::Scalar
-        } else {
-            Arch::new()
-        }
-    })
+    bostrack_core::simd_arch()
 }
 
 /// The lanes of `s` (a full vector, or fewer values at the window's last columns).

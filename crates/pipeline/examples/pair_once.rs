@@ -10,7 +10,8 @@
 //! With `PAIR_ONCE_NO_FRAME` set it stops after the reference side: the instructions of one frame
 //! are those of a run without it less those of a run with it (`valgrind --tool=callgrind`, one
 //! thread), a count the machine's load does not disturb. With `PAIR_ONCE_FRAMES=N` the frame is
-//! processed N times (a profile then shows mostly the frame's work). With `PAIR_ONCE_POOL=N`
+//! processed N times (a profile then shows mostly the frame's work; the best and the median of
+//! the frames' CPU times are printed). With `PAIR_ONCE_POOL=N`
 //! everything runs inside a rayon pool of N threads (`install`), as `run` does: no parallel
 //! loop is then handed over from the main thread (whose wake-ups a profile of one thread
 //! would otherwise show).
@@ -67,10 +68,21 @@ fn run() -> Res {
         .ok()
         .and_then(|v| v.parse().ok())
         .unwrap_or(1);
+    // each frame's CPU time (of the calling thread: all of it with `PAIR_ONCE_POOL=1`)
+    // (and its wall time: the thread CPU clock ticks in 4 ms steps on some machines)
+    let (mut cpu, mut wall) = (Vec::with_capacity(repeats), Vec::with_capacity(repeats));
     for _ in 1..repeats {
+        let (c, t0) = (thread_cpu(), Instant::now());
         process_frame(&ctx, &plan, &plan.gradients[0])?;
+        wall.push(t0.elapsed().as_secs_f64());
+        cpu.push(thread_cpu() - c);
     }
+    let (c, t0) = (thread_cpu(), Instant::now());
     let r = process_frame(&ctx, &plan, &plan.gradients[0])?;
+    wall.push(t0.elapsed().as_secs_f64());
+    cpu.push(thread_cpu() - c);
+    cpu.sort_by(f64::total_cmp);
+    wall.sort_by(f64::total_cmp);
     println!(
         "total {:.3} s wall, {} threads",
         t.elapsed().as_secs_f64(),
@@ -79,5 +91,22 @@ fn run() -> Res {
     println!("reference stages: {:?}", ctx.timings().stages);
     println!("frame stages: {:?}", r.summary.times.stages);
     println!("counts: {:?}", r.summary.counts);
+    println!(
+        "frame CPU of the calling thread (ms): best {:.2}, median {:.2}; wall best {:.2}, \
+         median {:.2} (of {})",
+        1e3 * cpu[0],
+        1e3 * cpu[cpu.len() / 2],
+        1e3 * wall[0],
+        1e3 * wall[wall.len() / 2],
+        cpu.len()
+    );
     Ok(())
+}
+
+/// CPU seconds of the calling thread (nanoseconds in /proc/thread-self/schedstat).
+fn thread_cpu() -> f64 {
+    std::fs::read_to_string("/proc/thread-self/schedstat")
+        .ok()
+        .and_then(|s| s.split_whitespace().next()?.parse::<f64>().ok())
+        .map_or(f64::NAN, |ns| ns * 1e-9)
 }
