@@ -6,6 +6,7 @@ use std::sync::OnceLock;
 /// unless `BOSTRACK_SIMD=portable` (read once) asks for the portable path, for benchmarks and
 /// tests against it. Every dispatched loop of the stage crates does the same operations in
 /// the same order on every path (no fused multiply-add, no reassociation): the same bits.
+#[inline]
 pub fn simd_arch() -> pulp::Arch {
     static ARCH: OnceLock<pulp::Arch> = OnceLock::new();
     *ARCH.get_or_init(|| {

@@ -416,7 +416,6 @@ impl Template {
     /// `σw²/(σ² + σw²)` of the way) and keeps the iteration contracting whatever the true size;
     /// two steps. Unbiased for a symmetric dot; the Gaussian weight keeps the neighbours' light
     /// and far noise out. `sigma` is the dot's sigma.
-    #[inline(always)]
     pub(crate) fn measure(
         &self,
         img: &Image,
@@ -818,37 +817,32 @@ pub(crate) fn classify(
     //    (results in site order: the same whatever the threads).
     let tpl = Template::new(ctx.sigma, s, ctx.a, ctx.b, cfg.lattice, ctx.nonfinite);
     let noise = ctx.noise.max(1e-12);
-    let arch = bostrack_core::simd_arch();
     let tested: Vec<(f64, f64, [f64; 2], Option<Blob>)> = sites
         .par_iter()
         .with_min_len(PAR_MIN)
         .map_init(Scratch::new, |scratch, st| {
-            // (the measure's row sums vectorised for the CPU: the same bits, see
-            // `bostrack_core::dispatch`)
-            bostrack_core::dispatch(arch, || {
-                let (mut snr, mut val, mut pos, mut blob) =
-                    (f64::NEG_INFINITY, 0.0, st.predicted, None);
-                // The test and the centroid start at the searched peak when there is one.
-                let p0 = st.peak.map_or(st.predicted, |p| p.pos());
-                let searched = st.peak.is_some() && dist2(p0, st.predicted) > 0.25;
-                if let Some(m) = tpl.measure(ctx.img, ctx.sign, p0, ctx.sigma, scratch) {
-                    snr = m.t / noise - if searched { st.peak_extra } else { 0.0 };
-                    val = m.a;
-                    pos = p0;
-                    blob = m.blob;
-                }
-                // A weak result at a searched peak: the prediction itself may be better.
-                if searched
-                    && snr < cfg.min_snr + 1.0
-                    && let Some((t, a)) = tpl.eval(ctx.img, ctx.sign, st.predicted)
-                    && t / noise > snr
-                {
-                    snr = t / noise;
-                    val = a;
-                    pos = st.predicted;
-                }
-                (snr, val, pos, blob)
-            })
+            let (mut snr, mut val, mut pos, mut blob) =
+                (f64::NEG_INFINITY, 0.0, st.predicted, None);
+            // The test and the centroid start at the searched peak when there is one.
+            let p0 = st.peak.map_or(st.predicted, |p| p.pos());
+            let searched = st.peak.is_some() && dist2(p0, st.predicted) > 0.25;
+            if let Some(m) = tpl.measure(ctx.img, ctx.sign, p0, ctx.sigma, scratch) {
+                snr = m.t / noise - if searched { st.peak_extra } else { 0.0 };
+                val = m.a;
+                pos = p0;
+                blob = m.blob;
+            }
+            // A weak result at a searched peak: the prediction itself may be better.
+            if searched
+                && snr < cfg.min_snr + 1.0
+                && let Some((t, a)) = tpl.eval(ctx.img, ctx.sign, st.predicted)
+                && t / noise > snr
+            {
+                snr = t / noise;
+                val = a;
+                pos = st.predicted;
+            }
+            (snr, val, pos, blob)
         })
         .collect();
     let snr: Vec<f64> = tested.iter().map(|t| t.0).collect();
@@ -1335,18 +1329,12 @@ mod tests {
                     {
                         for sign in [1.0, -1.0] {
                             let want = measure_reference(&tpl, &img, sign, *p, sigma);
-                            // on the portable path and on the CPU's (as `classify` runs it)
-                            for arch in [pulp::Arch::Scalar, bostrack_core::simd_arch()] {
-                                let got = bostrack_core::dispatch(arch, || {
-                                    tpl.measure(&img, sign, *p, sigma, &mut sc)
-                                });
-                                assert_eq!(
-                                    bits(&got),
-                                    bits(&want),
-                                    "sigma {sigma} spacing {spacing} point {k} sign {sign} \
-                                     bad {bad} {arch:?}"
-                                );
-                            }
+                            let got = tpl.measure(&img, sign, *p, sigma, &mut sc);
+                            assert_eq!(
+                                bits(&got),
+                                bits(&want),
+                                "sigma {sigma} spacing {spacing} point {k} sign {sign} bad {bad}"
+                            );
                         }
                     }
                 }

@@ -12,6 +12,7 @@ use pulp::{Arch, Simd, WithSimd};
 
 /// The instruction set the kernels run on ([`bostrack_core::simd_arch`]: the best the CPU has
 /// unless `BOSTRACK_SIMD=portable`).
+#[inline]
 pub(crate) fn arch() -> Arch {
     bostrack_core::simd_arch()
 }
