@@ -280,9 +280,7 @@ pub(crate) fn joint_bound_direct(
     let n_nb = n_own - 1; // without the background
     let ib = kind.free().iter().position(|&p| p == IB)?;
     let dim = n_own + n_nb * neighbours.len();
-    // the upper triangle of M, row-major: each pixel adds `wt ∇μ ∇μᵀ` row by row over
-    // contiguous slices (a neighbour too faint at a pixel has zero derivatives there, which add
-    // exactly nothing: the same sums as leaving it out)
+    // the upper triangle of M, row-major: each pixel adds `wt ∇μ ∇μᵀ` row by row
     let mut upper = vec![0.0; dim * dim];
     let mut grad = vec![0.0; dim];
     let mut d = [0.0; 7];
