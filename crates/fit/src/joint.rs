@@ -131,10 +131,12 @@ pub(crate) fn joint_bound(
     noise: &NoiseModel,
     keep: &dyn Fn(i64, i64) -> bool,
 ) -> Option<[f64; 2]> {
-    let n_own = kind.n_free();
-    let n_nb = n_own - 1; // without the background
-    let ib = kind.free().iter().position(|&p| p == IB)?;
-    let dim = n_own + n_nb * neighbours.len();
+    let Dims {
+        n_own,
+        n_nb,
+        ib,
+        dim,
+    } = Dims::of(kind, neighbours.len())?;
     let w = dot.window;
     let npix = w.width * w.height;
     let dots: Vec<&JointDot> = std::iter::once(dot).chain(neighbours).collect();
@@ -205,12 +207,14 @@ pub(crate) fn joint_bound(
         }
     }
     // each neighbour's information from its own window outside this one, background marginalised
+    let (mut en, mut wn) = (Vec::new(), Vec::new());
     for (k, nb) in neighbours.iter().enumerate() {
         let nw = nb.window;
         let n = nw.width * nw.height;
-        let mut en = vec![0.0; n];
+        en.resize(n, 0.0);
         nb.exp_over(nw, &mut en, &mut v, &mut q);
-        let mut wn = vec![0.0; n];
+        wn.clear();
+        wn.resize(n, 0.0);
         for (py, y) in (nw.y..nw.y + nw.height as i64).enumerate() {
             for (px, x) in (nw.x..nw.x + nw.width as i64).enumerate() {
                 if inside(w, x, y) || !keep(x, y) {
@@ -232,6 +236,29 @@ pub(crate) fn joint_bound(
     }
     fill_lower(&mut mat);
     bound_of(mat)
+}
+
+/// The sizes of a group's information matrix: the dot's free parameters (`n_own`, the
+/// background at `ib` among them), each neighbour's without its background (`n_nb`), and all
+/// of them (`dim`). `None` for a kind without a background.
+struct Dims {
+    n_own: usize,
+    n_nb: usize,
+    ib: usize,
+    dim: usize,
+}
+
+impl Dims {
+    fn of(kind: Kind, neighbours: usize) -> Option<Dims> {
+        let n_own = kind.n_free();
+        let ib = kind.free().iter().position(|&p| p == IB)?;
+        Some(Dims {
+            n_own,
+            n_nb: n_own - 1,
+            ib,
+            dim: n_own + (n_own - 1) * neighbours,
+        })
+    }
 }
 
 /// Every dot's exponential factor over `dot`'s window, rendered once (row-major, the dot's
@@ -276,10 +303,12 @@ pub(crate) fn joint_bound_direct(
     noise: &NoiseModel,
     keep: &dyn Fn(i64, i64) -> bool,
 ) -> Option<[f64; 2]> {
-    let n_own = kind.n_free();
-    let n_nb = n_own - 1; // without the background
-    let ib = kind.free().iter().position(|&p| p == IB)?;
-    let dim = n_own + n_nb * neighbours.len();
+    let Dims {
+        n_own,
+        n_nb,
+        ib,
+        dim,
+    } = Dims::of(kind, neighbours.len())?;
     // the upper triangle of M, row-major: each pixel adds `wt ∇μ ∇μᵀ` row by row
     let mut upper = vec![0.0; dim * dim];
     let mut grad = vec![0.0; dim];
