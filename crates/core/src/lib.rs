@@ -16,6 +16,7 @@
 
 mod dot;
 mod flags;
+mod grid;
 mod image;
 mod lattice;
 mod noise;
@@ -29,6 +30,7 @@ pub use serde as __serde;
 
 pub use dot::{DotFit, FitStatus, Gaussian2D, GridIndex};
 pub use flags::DotFlags;
+pub use grid::GridTable;
 pub use image::{Image, ImageMeta, Mask, Photometric, SampleFormat, ShapeError};
 pub use lattice::Lattice;
 pub use noise::NoiseModel;

@@ -7,11 +7,12 @@ use crate::eval::{IA, conditional_sigma, pixel_blur, theta_from_gaussian};
 use crate::fit::Fitter;
 use crate::joint::JointDot;
 use bostrack_core::{
-    DotFit, DotFlags, FitStatus, Gaussian2D, GridIndex, Image, Mask, NoiseModel, Seed, Window,
+    DotFit, DotFlags, FitStatus, Gaussian2D, GridIndex, GridTable, Image, Mask, NoiseModel, Seed,
+    Window,
 };
 use bostrack_model::Sampling;
 use rayon::prelude::*;
-use std::collections::{BTreeMap, HashMap};
+use std::collections::BTreeMap;
 
 /// Sigmas beyond which a neighbour's dot is taken as zero (exp(-12.5) ≈ 4e-6 of its peak).
 const REACH_SIGMAS: f64 = 5.0;
@@ -1139,7 +1140,7 @@ impl<'a> Iteration<'a> {
             None,
         );
         let mut after = fits.to_vec();
-        hood.apply(&red, &mut after, self.cfg.sampling);
+        hood.apply(&red, |r| &r.fit, &mut after, self.cfg.sampling);
         let black = self.pass_with(
             &after,
             Some(&other),
@@ -1325,7 +1326,7 @@ impl<'a> Iteration<'a> {
                 &hood,
                 Some(&items),
             );
-            hood.apply(&next, &mut fits, self.cfg.sampling);
+            hood.apply(&next, |r| &r.fit, &mut fits, self.cfg.sampling);
             let changed = next.iter().enumerate().filter(|(_, n)| n.is_some());
             links.relink(self.seeds, &hood, changed.map(|(j, _)| j), &mut near, None);
             let mut refitted = 0;
@@ -1459,33 +1460,33 @@ impl<'a> Iteration<'a> {
         first: bool,
     ) -> f64 {
         let taken = h.map.frame_take(&mut h.state);
-        let mut updates: Vec<Option<Box<Item>>> = vec![None; items.len()];
+        // the new fits and their moves, by dot (no record is copied: the records take them
+        // below, in parallel)
+        let mut updates: Vec<Option<(DotFit, f64)>> = vec![None; items.len()];
         let mut most = 0.0f64;
         for (i, params, by) in taken {
             let it = &items[i];
-            let mut next = Item {
-                fit: it.fit,
-                chi2: it.chi2,
-                dof: it.dof,
-                moved: if first { it.moved + by } else { by },
-                looked: it.looked.clone(),
-                stepped: it.stepped,
-                rho_held: it.rho_held,
-            };
-            next.fit.params = params;
-            most = most.max(next.moved);
-            updates[i] = Some(Box::new(next));
+            let mut fit = it.fit;
+            fit.params = params;
+            let moved = if first { it.moved + by } else { by };
+            most = most.max(moved);
+            updates[i] = Some((fit, moved));
         }
-        hood.apply(&updates, fits, self.cfg.sampling);
+        hood.apply(&updates, |u| &u.0, fits, self.cfg.sampling);
         let changed = updates.iter().enumerate().filter(|(_, u)| u.is_some());
         links.relink(self.seeds, hood, changed.map(|(j, _)| j), near, None);
-        for (it, u) in items.iter_mut().zip(updates) {
-            match u {
-                Some(u) => *it = *u,
+        items
+            .par_iter_mut()
+            .zip(&updates)
+            .with_min_len(256)
+            .for_each(|(it, u)| match u {
+                Some((fit, moved)) => {
+                    it.fit = *fit;
+                    it.moved = *moved;
+                }
                 None if !first => it.moved = 0.0,
                 None => {}
-            }
-        }
+            });
         most
     }
 
@@ -1939,27 +1940,34 @@ impl<'a> Neighbourhood<'a> {
             .with(i)
     }
 
-    /// Replaces dot `j`'s model by that of `fit` where the gate admits it (otherwise the dot
+    /// Replaces a dot's model `m` by that of `fit` where the gate admits it (otherwise the dot
     /// keeps its last admitted model: a fit that failed or wandered off to a wide blob is not
-    /// subtracted from its neighbours, which would spread the failure); `false` when the index
+    /// subtracted from its neighbours, which would spread the failure); `true` when the index
     /// must be rebuilt ([`Neighbourhood::reindex`]): the dot appeared, moved to another bucket
     /// or reaches further than the index looks.
-    fn set(&mut self, j: usize, fit: &DotFit, sampling: FitSampling) -> bool {
-        let Some(new) = self.gate.model(fit, sampling) else {
-            return true;
+    fn set(
+        gate: &Plausible,
+        index: &NeighbourIndex,
+        m: &mut Option<NeighbourModel>,
+        fit: &DotFit,
+        sampling: FitSampling,
+    ) -> bool {
+        let Some(new) = gate.model(fit, sampling) else {
+            return false;
         };
-        let in_place = self.models[j].as_ref().is_some_and(|a| {
-            self.index.key(a) == self.index.key(&new) && new.rx.max(new.ry) <= self.index.reach
-        });
-        self.models[j] = Some(new);
-        in_place
+        let in_place = m
+            .as_ref()
+            .is_some_and(|a| index.key(a) == index.key(&new) && new.rx.max(new.ry) <= index.reach);
+        *m = Some(new);
+        !in_place
     }
 
     /// [`Neighbourhood::set`] for every record a pass refitted (`None`: kept), each new fit
     /// also written into `fits`.
-    fn apply(
+    fn apply<T: Sync>(
         &mut self,
-        refitted: &[Option<Box<Item>>],
+        refitted: &[Option<T>],
+        fit_of: impl Fn(&T) -> &DotFit + Sync,
         fits: &mut [DotFit],
         sampling: FitSampling,
     ) {
@@ -1972,16 +1980,9 @@ impl<'a> Neighbourhood<'a> {
             .with_min_len(256)
             .map(|((m, f), r)| {
                 let Some(r) = r else { return false };
-                *f = r.fit;
-                // as `set`
-                let Some(new) = gate.model(&r.fit, sampling) else {
-                    return false;
-                };
-                let in_place = m.as_ref().is_some_and(|a| {
-                    index.key(a) == index.key(&new) && new.rx.max(new.ry) <= index.reach
-                });
-                *m = Some(new);
-                !in_place
+                let fit = fit_of(r);
+                *f = *fit;
+                Self::set(gate, index, m, fit, sampling)
             })
             .reduce(|| false, |a, b| a || b);
         if reindex {
@@ -1989,12 +1990,16 @@ impl<'a> Neighbourhood<'a> {
         }
     }
 
-    /// [`Neighbourhood::set`] for every record of a pass (`None`: kept).
+    /// [`Neighbourhood::set`] for every record of a pass, in parallel (each dot's model on its
+    /// own; the index rebuilt once where any dot left its bucket).
     fn update(&mut self, items: &[Item], sampling: FitSampling) {
-        let mut reindex = false;
-        for (j, it) in items.iter().enumerate() {
-            reindex |= !self.set(j, &it.fit, sampling);
-        }
+        let (gate, index) = (&self.gate, &self.index);
+        let reindex = self.models[..items.len()]
+            .par_iter_mut()
+            .zip(items)
+            .with_min_len(256)
+            .map(|(m, it)| Self::set(gate, index, m, &it.fit, sampling))
+            .reduce(|| false, |a, b| a || b);
         if reindex {
             self.reindex();
         }
@@ -2135,15 +2140,20 @@ impl Links {
 
     /// The seeds' windows, bucketed.
     fn index(seeds: &[Seed]) -> NeighbourIndex {
-        NeighbourIndex::of_points(seeds.iter().map(|s| {
-            let w = s.window;
-            let half = 0.5 * w.width.max(w.height) as f64;
-            Some((
-                w.x as f64 + 0.5 * (w.width as f64 - 1.0),
-                w.y as f64 + 0.5 * (w.height as f64 - 1.0),
-                half,
-            ))
-        }))
+        let keyed: Vec<Option<Keyed>> = seeds
+            .par_iter()
+            .with_min_len(1024)
+            .map(|s| {
+                let w = s.window;
+                let half = 0.5 * w.width.max(w.height) as f64;
+                let (x, y) = (
+                    w.x as f64 + 0.5 * (w.width as f64 - 1.0),
+                    w.y as f64 + 0.5 * (w.height as f64 - 1.0),
+                );
+                Some((NeighbourIndex::key_of(x, y), half))
+            })
+            .collect();
+        NeighbourIndex::of_keys(&keyed)
     }
 
     /// The links of another image's iteration over the same seeds (`m`), brought to the
@@ -2391,11 +2401,7 @@ fn ghost_sites(
     width: usize,
     height: usize,
 ) -> Vec<(GridIndex, [f64; 2])> {
-    let at: HashMap<(i32, i32), usize> = seeds
-        .iter()
-        .enumerate()
-        .map(|(k, s)| ((s.index.i, s.index.j), k))
-        .collect();
+    let at = GridTable::new(seeds.iter().map(|s| s.index));
     let usable = |k: usize| {
         let f = &fits[k];
         (f.status.is_ok() && f.params.is_valid()).then_some([f.params.x0, f.params.y0])
@@ -2403,36 +2409,49 @@ fn ghost_sites(
     let outside = |p: [f64; 2]| {
         p[0] < -0.5 || p[1] < -0.5 || p[0] > width as f64 - 0.5 || p[1] > height as f64 - 0.5
     };
+    // each seed's extrapolations past the image's edge, in parallel; summed per site below in
+    // seed order (the sums of a serial loop, bit for bit)
+    // (a site's grid index and one extrapolation of its position)
+    type Guess = ((i32, i32), [f64; 2]);
+    let found: Vec<Vec<Guess>> = seeds
+        .par_iter()
+        .enumerate()
+        .with_min_len(256)
+        .map(|(k, s)| {
+            let mut out = Vec::new();
+            let Some(p) = usable(k) else { return out };
+            let (i, j) = (s.index.i, s.index.j);
+            for (di, dj) in [
+                (1, 0),
+                (-1, 0),
+                (0, 1),
+                (0, -1),
+                (1, 1),
+                (1, -1),
+                (-1, 1),
+                (-1, -1),
+            ] {
+                let g = (i + di, j + dj);
+                if at.get(GridIndex::new(g.0, g.1)).is_some() {
+                    continue;
+                }
+                let Some(q) = at.get(GridIndex::new(i - di, j - dj)).and_then(usable) else {
+                    continue;
+                };
+                let e = [2.0 * p[0] - q[0], 2.0 * p[1] - q[1]];
+                if outside(e) {
+                    out.push((g, e));
+                }
+            }
+            out
+        })
+        .collect();
     let mut sites: BTreeMap<(i32, i32), ([f64; 2], u32)> = BTreeMap::new();
-    for (k, s) in seeds.iter().enumerate() {
-        let Some(p) = usable(k) else { continue };
-        let (i, j) = (s.index.i, s.index.j);
-        for (di, dj) in [
-            (1, 0),
-            (-1, 0),
-            (0, 1),
-            (0, -1),
-            (1, 1),
-            (1, -1),
-            (-1, 1),
-            (-1, -1),
-        ] {
-            let g = (i + di, j + dj);
-            if at.contains_key(&g) {
-                continue;
-            }
-            let Some(q) = at.get(&(i - di, j - dj)).and_then(|&o| usable(o)) else {
-                continue;
-            };
-            let e = [2.0 * p[0] - q[0], 2.0 * p[1] - q[1]];
-            if !outside(e) {
-                continue;
-            }
-            let v = sites.entry(g).or_insert(([0.0; 2], 0));
-            v.0[0] += e[0];
-            v.0[1] += e[1];
-            v.1 += 1;
-        }
+    for (g, e) in found.into_iter().flatten() {
+        let v = sites.entry(g).or_insert(([0.0; 2], 0));
+        v.0[0] += e[0];
+        v.0[1] += e[1];
+        v.1 += 1;
     }
     sites
         .into_iter()
@@ -2502,9 +2521,15 @@ impl Canvas {
             .iter()
             .map(|m| m.as_ref().and_then(|m| m.pixel_box(width, height)))
             .collect();
-        // (a new buffer is zeroed by its resize: its bands need not be zeroed again)
+        // (a new buffer is zeroed as it is filled, in parallel: its bands need not be zeroed
+        // again; a serial resize of a 1-MP canvas was ~1 % of a gradient frame's instructions
+        // on one thread)
         let zeroed = values.is_empty();
-        values.resize(width * height, 0.0);
+        if zeroed {
+            values.par_extend(rayon::iter::repeat_n(0.0, width * height));
+        } else {
+            values.resize(width * height, 0.0);
+        }
         if width == 0 || height == 0 {
             return Canvas {
                 width,
@@ -3214,6 +3239,9 @@ fn floor_i64(x: f64) -> i64 {
     }
 }
 
+/// A point's bucket coordinates and reach ([`NeighbourIndex::of_keys`]).
+type Keyed = ((i64, i64), f64);
+
 /// Fitted dots bucketed on a coarse grid, for finding the neighbours of a window.
 struct NeighbourIndex {
     cell: f64,
@@ -3229,23 +3257,43 @@ struct NeighbourIndex {
 }
 
 impl NeighbourIndex {
+    /// The side of a bucket (px).
+    const CELL: f64 = 16.0;
+
+    /// The bucket coordinates of a point.
+    fn key_of(x: f64, y: f64) -> (i64, i64) {
+        (floor_i64(x / Self::CELL), floor_i64(y / Self::CELL))
+    }
+
+    /// The index of the models (their buckets found in parallel: the index is rebuilt after
+    /// every pass that moves a dot to another bucket).
     fn new(models: &[Option<NeighbourModel>]) -> NeighbourIndex {
-        NeighbourIndex::of_points(
-            models
-                .iter()
-                .map(|m| m.as_ref().map(|m| (m.x0, m.y0, m.rx.max(m.ry)))),
-        )
+        let keyed: Vec<Option<Keyed>> = models
+            .par_iter()
+            .with_min_len(1024)
+            .map(|m| {
+                m.as_ref()
+                    .map(|m| (Self::key_of(m.x0, m.y0), m.rx.max(m.ry)))
+            })
+            .collect();
+        NeighbourIndex::of_keys(&keyed)
     }
 
     /// The index of points `(x, y, reach)` (`None`: no point, its number kept).
-    fn of_points(points: impl Iterator<Item = Option<(f64, f64, f64)>> + Clone) -> NeighbourIndex {
-        let cell = 16.0;
-        let key = |x: f64, y: f64| (floor_i64(x / cell), floor_i64(y / cell));
+    fn of_points(points: impl Iterator<Item = Option<(f64, f64, f64)>>) -> NeighbourIndex {
+        let keyed: Vec<Option<Keyed>> = points
+            .map(|p| p.map(|(x, y, r)| (Self::key_of(x, y), r)))
+            .collect();
+        NeighbourIndex::of_keys(&keyed)
+    }
+
+    /// The index of points given by their buckets and reaches.
+    fn of_keys(keyed: &[Option<Keyed>]) -> NeighbourIndex {
+        let cell = Self::CELL;
         let mut reach: f64 = 0.0;
         let (mut lo, mut hi) = ((i64::MAX, i64::MAX), (i64::MIN, i64::MIN));
-        for (x, y, r) in points.clone().flatten() {
+        for &((kx, ky), r) in keyed.iter().flatten() {
             reach = reach.max(r);
-            let (kx, ky) = key(x, y);
             lo = (lo.0.min(kx), lo.1.min(ky));
             hi = (hi.0.max(kx), hi.1.max(ky));
         }
@@ -3262,23 +3310,20 @@ impl NeighbourIndex {
             };
         }
         let (nx, ny) = ((hi.0 - lo.0 + 1) as usize, (hi.1 - lo.1 + 1) as usize);
-        let bucket = |x: f64, y: f64| {
-            let (kx, ky) = key(x, y);
-            (ky - lo.1) as usize * nx + (kx - lo.0) as usize
-        };
+        let bucket = |(kx, ky): (i64, i64)| (ky - lo.1) as usize * nx + (kx - lo.0) as usize;
         // counting sort into buckets (indices stay ascending within a bucket)
         let mut start = vec![0u32; nx * ny + 1];
-        for (x, y, _) in points.clone().flatten() {
-            start[bucket(x, y) + 1] += 1;
+        for &(k, _) in keyed.iter().flatten() {
+            start[bucket(k) + 1] += 1;
         }
         for k in 0..nx * ny {
             start[k + 1] += start[k];
         }
         let mut fill = start.clone();
         let mut items = vec![0u32; start[nx * ny] as usize];
-        for (i, p) in points.enumerate() {
-            if let Some((x, y, _)) = p {
-                let b = bucket(x, y);
+        for (i, p) in keyed.iter().enumerate() {
+            if let Some((k, _)) = p {
+                let b = bucket(*k);
                 items[fill[b] as usize] = i as u32;
                 fill[b] += 1;
             }

@@ -4,9 +4,8 @@
 use crate::error::MatchError;
 use crate::nearest::{NearestConfig, iterate, mutual_pass_sets};
 use crate::points::{RadiusSet, median};
-use bostrack_core::{DotFit, DotFlags, GridIndex};
+use bostrack_core::{DotFit, DotFlags, GridTable};
 use rayon::prelude::*;
-use std::collections::HashMap;
 
 /// Fewest dots per rayon task of the per-dot loops (each dot's work is a few hundred
 /// instructions: smaller tasks cost more to schedule than they save).
@@ -182,133 +181,6 @@ pub fn match_dots(
     })
 }
 
-/// Lookup of the reference record by grid index (the first record wins for a duplicated
-/// index): a dense table over the box of the reference indices when that box is compact (a
-/// detected lattice patch), a hash map otherwise.
-enum IndexTable {
-    Dense {
-        i0: i64,
-        j0: i64,
-        ni: i64,
-        nj: i64,
-        slot: Vec<u32>,
-    },
-    Map(HashMap<GridIndex, usize>),
-}
-
-impl IndexTable {
-    fn new(reference: &[DotFit]) -> Self {
-        let n = reference.len();
-        let (mut i0, mut i1, mut j0, mut j1) = (i64::MAX, i64::MIN, i64::MAX, i64::MIN);
-        for d in reference {
-            i0 = i0.min(d.index.i as i64);
-            i1 = i1.max(d.index.i as i64);
-            j0 = j0.min(d.index.j as i64);
-            j1 = j1.max(d.index.j as i64);
-        }
-        let (ni, nj) = (i1 - i0 + 1, j1 - j0 + 1);
-        // i32 ranges: ni, nj <= 2^32, the product fits an i64 only after the size check
-        if n > 0 && n < u32::MAX as usize && ni <= (4 * n as i64 + 64) / nj.max(1) {
-            let mut slot = vec![u32::MAX; (ni * nj) as usize];
-            for (k, d) in reference.iter().enumerate() {
-                let s =
-                    &mut slot[((d.index.j as i64 - j0) * ni + (d.index.i as i64 - i0)) as usize];
-                if *s == u32::MAX {
-                    *s = k as u32;
-                }
-            }
-            return IndexTable::Dense {
-                i0,
-                j0,
-                ni,
-                nj,
-                slot,
-            };
-        }
-        let mut map = HashMap::with_capacity(n);
-        for (k, d) in reference.iter().enumerate() {
-            map.entry(d.index).or_insert(k);
-        }
-        IndexTable::Map(map)
-    }
-
-    /// The slots of the 8 indices around `g` when they all lie inside a dense table (the
-    /// common case, answered without checks per neighbour); `u32::MAX`: no record.
-    #[inline]
-    fn ring1(&self, g: GridIndex) -> Option<[u32; 8]> {
-        let IndexTable::Dense {
-            i0,
-            j0,
-            ni,
-            nj,
-            slot,
-        } = self
-        else {
-            return None;
-        };
-        let (x, y) = (g.i as i64 - i0, g.j as i64 - j0);
-        if x < 1 || y < 1 || x + 1 >= *ni || y + 1 >= *nj {
-            return None;
-        }
-        let c = (y * ni + x) as usize;
-        let w = *ni as usize;
-        let (up, down) = (&slot[c - w - 1..c - w + 2], &slot[c + w - 1..c + w + 2]);
-        Some([
-            up[0],
-            up[1],
-            up[2],
-            slot[c - 1],
-            slot[c + 1],
-            down[0],
-            down[1],
-            down[2],
-        ])
-    }
-
-    /// Call `f` with the record of every index at Chebyshev distance `w` from `g` (those
-    /// present).
-    #[inline]
-    fn ring(&self, g: GridIndex, w: i64, mut f: impl FnMut(usize)) {
-        let (a, b) = (g.i as i64, g.j as i64);
-        let mut at = |da: i64, db: i64| {
-            if let (Ok(x), Ok(y)) = (i32::try_from(a + da), i32::try_from(b + db))
-                && let Some(s) = self.get(GridIndex::new(x, y))
-            {
-                f(s);
-            }
-        };
-        for da in -w..=w {
-            at(da, -w);
-            at(da, w);
-        }
-        for db in 1 - w..w {
-            at(-w, db);
-            at(w, db);
-        }
-    }
-
-    #[inline]
-    fn get(&self, g: GridIndex) -> Option<usize> {
-        match self {
-            IndexTable::Dense {
-                i0,
-                j0,
-                ni,
-                nj,
-                slot,
-            } => {
-                let (a, b) = (g.i as i64 - i0, g.j as i64 - j0);
-                if a < 0 || b < 0 || a >= *ni || b >= *nj {
-                    return None;
-                }
-                let s = slot[(b * ni + a) as usize];
-                (s != u32::MAX).then_some(s as usize)
-            }
-            IndexTable::Map(m) => m.get(&g).copied(),
-        }
-    }
-}
-
 /// Widest ring of lattice neighbours the index predictor looks at.
 const MAX_RING: i64 = 3;
 
@@ -320,7 +192,7 @@ const MAX_RING: i64 = 3;
 /// on the reference image), not from the gradient indices under test, and cost no search.
 struct IndexPredictor<'a> {
     reference: &'a [DotFit],
-    table: &'a IndexTable,
+    table: &'a GridTable,
     /// `g - r` of every usable index pair (`None` elsewhere).
     disp: Vec<Option<[f64; 2]>>,
     need: usize,
@@ -330,7 +202,7 @@ struct IndexPredictor<'a> {
 impl<'a> IndexPredictor<'a> {
     fn new(
         reference: &'a [DotFit],
-        table: &'a IndexTable,
+        table: &'a GridTable,
         ref_pos: &[[f64; 2]],
         grad_pos: &[[f64; 2]],
         paired: &[Option<usize>],
@@ -493,7 +365,7 @@ fn by_grid_index(
     pairs: &mut Vec<Pair>,
 ) -> usize {
     // 1. pairs by index (first occurrence of a duplicated index wins)
-    let table = IndexTable::new(reference);
+    let table = GridTable::new(reference.iter().map(|d| d.index));
     let mut ref_partner: Vec<Option<usize>> = vec![None; reference.len()];
     let mut grad_taken = vec![false; gradient.len()];
     for (j, d) in gradient.iter().enumerate() {

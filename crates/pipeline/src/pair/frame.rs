@@ -7,11 +7,12 @@ use crate::config::Quantities;
 use crate::error::PipelineError;
 use crate::plan::Plan;
 use bostrack_core::{DotFit, DotFlags, Image};
-use bostrack_displacement::{DisplacementConfig, PairDot, PairInput, pair_dots};
+use bostrack_displacement::{DisplacementConfig, PairDot, PairInput, pair_dot};
 use bostrack_match::{
     MatchConfig, MatchMode, MatchedBy, Matches, MedianTest, NearestConfig, ValidationConfig,
     match_dots, validate_at,
 };
+use rayon::prelude::*;
 use std::path::Path;
 
 /// The fits of one image matched to the reference fits.
@@ -352,15 +353,20 @@ pub fn process_image(
         reference_position: ctx.reference_position(plan),
         invalid_if: plan.invalid_if,
     };
-    let dots: Vec<PairDot> = pair_dots(
-        (0..n).map(|i| PairInput {
-            reference: Some(&ctx.fits[i]),
-            gradient: partner[i].map(|j| &m.fits[j]),
-            stack: ctx.stack_stats[i],
-            flags: flags[i],
-        }),
-        &dcfg,
-    );
+    // (each dot on its own, in parallel; in dot order)
+    let dots: Vec<PairDot> = (0..n)
+        .into_par_iter()
+        .with_min_len(256)
+        .filter_map(|i| {
+            let input = PairInput {
+                reference: Some(&ctx.fits[i]),
+                gradient: partner[i].map(|j| &m.fits[j]),
+                stack: ctx.stack_stats[i],
+                flags: flags[i],
+            };
+            pair_dot(&input, &dcfg)
+        })
+        .collect();
     times.push("pair", sw.lap());
 
     // with [optics]: the density gradient per dot and the density field
@@ -412,18 +418,50 @@ pub fn process_image(
         outliers: v.outliers(),
         valid: dots.iter().filter(|d| d.valid).count(),
     };
-    let valid = || dots.iter().filter(|d| d.valid);
+    // the summary's order statistics (18 selections over the frame's dots), each on its own in
+    // parallel
+    let valid: Vec<&PairDot> = dots.iter().filter(|d| d.valid).collect();
+    type Get = fn(&PairDot) -> Option<f64>;
+    let axis = |a: usize, v: Option<[f64; 2]>| v.map(|v| v[a]);
+    let gets: [Get; 16] = [
+        |d| d.displacement.map(|v| v[0].hypot(v[1])),
+        |d| d.u_d.map(|v| v[0].hypot(v[1])),
+        |d| d.displacement.map(|v| v[0]),
+        |d| d.displacement.map(|v| v[1]),
+        |d| d.ar.map(|v| v[0]),
+        |d| d.ar.map(|v| v[1]),
+        |d| d.u_ref.map(|v| v[0]),
+        |d| d.u_ref.map(|v| v[1]),
+        |d| d.u_grad.map(|v| v[0]),
+        |d| d.u_grad.map(|v| v[1]),
+        |d| d.u_d.map(|v| v[0]),
+        |d| d.u_d.map(|v| v[1]),
+        |d| d.reference.map(|f| f.crlb_x),
+        |d| d.reference.map(|f| f.crlb_y),
+        |d| d.gradient.map(|f| f.crlb_x),
+        |d| d.gradient.map(|f| f.crlb_y),
+    ];
+    let column = |get: Get| valid.iter().filter_map(move |d| get(d));
+    let (m, p99): (Vec<Option<f64>>, Vec<Option<f64>>) = rayon::join(
+        || gets.par_iter().map(|&g| median(column(g))).collect(),
+        || {
+            [0, 1]
+                .par_iter()
+                .map(|&a| percentile(valid.iter().filter_map(|d| axis(a, d.ar)), 99.0))
+                .collect()
+        },
+    );
     let medians = FrameMedians {
-        abs_d: median(valid().filter_map(|d| d.displacement.map(|v| v[0].hypot(v[1])))),
-        abs_u_d: median(valid().filter_map(|d| d.u_d.map(|v| v[0].hypot(v[1])))),
-        d: median2(valid().filter_map(|d| d.displacement)),
-        ar: median2(valid().filter_map(|d| d.ar)),
-        ar_p99: [0, 1].map(|a| percentile(valid().filter_map(|d| d.ar.map(|v| v[a])), 99.0)),
-        u_ref: median2(valid().filter_map(|d| d.u_ref)),
-        u_grad: median2(valid().filter_map(|d| d.u_grad)),
-        u_d: median2(valid().filter_map(|d| d.u_d)),
-        crlb_ref: median2(valid().filter_map(|d| d.reference.map(|f| [f.crlb_x, f.crlb_y]))),
-        crlb_grad: median2(valid().filter_map(|d| d.gradient.map(|f| [f.crlb_x, f.crlb_y]))),
+        abs_d: m[0],
+        abs_u_d: m[1],
+        d: [m[2], m[3]],
+        ar: [m[4], m[5]],
+        ar_p99: [p99[0], p99[1]],
+        u_ref: [m[6], m[7]],
+        u_grad: [m[8], m[9]],
+        u_d: [m[10], m[11]],
+        crlb_ref: [m[12], m[13]],
+        crlb_grad: [m[14], m[15]],
     };
     let stem = frame
         .file_stem()
