@@ -508,11 +508,12 @@ fn median_shape(fits: &[DotFit]) -> Option<[f64; 3]> {
     let median = |get: fn(&Gaussian2D) -> f64| {
         bostrack_core::median(&mut good.iter().map(|g| get(g)).collect::<Vec<f64>>())
     };
-    Some([
-        median(|g| g.sigma_x),
-        median(|g| g.sigma_y),
-        held_rho(&mut good.iter().map(|g| g.rho).collect::<Vec<f64>>()),
-    ])
+    // (the three side by side)
+    let ((sx, sy), rho) = rayon::join(
+        || rayon::join(|| median(|g| g.sigma_x), || median(|g| g.sigma_y)),
+        || held_rho(&mut good.iter().map(|g| g.rho).collect::<Vec<f64>>()),
+    );
+    Some([sx, sy, rho])
 }
 
 /// The held shape's ρ from the fits' values: their median, or 0 where that is within two of
@@ -1329,37 +1330,46 @@ impl<'a> Iteration<'a> {
             hood.apply(&next, |r| &r.fit, &mut fits, self.cfg.sampling);
             let changed = next.iter().enumerate().filter(|(_, n)| n.is_some());
             links.relink(self.seeds, &hood, changed.map(|(j, _)| j), &mut near, None);
-            let mut refitted = 0;
-            for (j, (((((it, n), k), last), o), &sel)) in items
-                .iter_mut()
-                .zip(next)
-                .zip(&mut strikes)
-                .zip(&mut last_move)
-                .zip(&mut owed)
-                .zip(&select)
-                .enumerate()
-            {
-                if sel {
-                    *o = 0.0;
-                }
-                match n {
-                    Some(n) => {
-                        if let Some(h) = hybrid.as_mut() {
-                            h.since[j] = true;
-                        }
-                        linear_steps += usize::from(n.stepped);
-                        // (from pass 4 on: passes 1-3 start from the moments and loose fits)
-                        if passes >= 3 && n.moved > tol && n.moved >= *last {
-                            *k += 1;
-                        }
-                        *last = n.moved;
-                        *it = *n;
-                        refitted += 1;
+            if let Some(h) = hybrid.as_mut() {
+                for (s, n) in h.since.iter_mut().zip(&next) {
+                    if n.is_some() {
+                        *s = true;
                     }
-                    // not selected, or predicted to move by less than the tolerance
-                    None => it.moved = 0.0,
                 }
             }
+            // each record on its own, in parallel (the counts summed)
+            let (steps, refitted) = items
+                .par_iter_mut()
+                .zip(next)
+                .zip(strikes.par_iter_mut())
+                .zip(last_move.par_iter_mut())
+                .zip(owed.par_iter_mut())
+                .zip(select.par_iter())
+                .with_min_len(256)
+                .map(|(((((it, n), k), last), o), &sel)| {
+                    if sel {
+                        *o = 0.0;
+                    }
+                    match n {
+                        Some(n) => {
+                            // (from pass 4 on: passes 1-3 start from the moments and loose
+                            // fits)
+                            if passes >= 3 && n.moved > tol && n.moved >= *last {
+                                *k += 1;
+                            }
+                            *last = n.moved;
+                            *it = *n;
+                            (usize::from(it.stepped), 1)
+                        }
+                        // not selected, or predicted to move by less than the tolerance
+                        None => {
+                            it.moved = 0.0;
+                            (0, 0)
+                        }
+                    }
+                })
+                .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
+            linear_steps += steps;
             refits.push(refitted);
         }
     }
@@ -1839,8 +1849,10 @@ fn finish(items: Vec<Item>, cfg: &FitConfig) -> Vec<DotFit> {
         return items.into_iter().map(|it| it.fit).collect();
     }
     // median of χ²/median(χ²_dof) over the usable fits
+    // (each dot on its own in parallel, in dot order)
     let mut ratios: Vec<f64> = items
-        .iter()
+        .par_iter()
+        .with_min_len(1024)
         .filter(|it| usable(it))
         .map(|it| it.chi2 / chi2_median(it.dof))
         .collect();
@@ -1849,7 +1861,8 @@ fn finish(items: Vec<Item>, cfg: &FitConfig) -> Vec<DotFit> {
     let scale = m.max(1.0);
     let z = normal_upper_quantile(alpha);
     items
-        .into_iter()
+        .into_par_iter()
+        .with_min_len(1024)
         .map(|it| {
             let mut fit = it.fit;
             if usable(&it) && it.chi2 / scale > chi2_quantile(it.dof, z) {
@@ -2518,7 +2531,8 @@ impl Canvas {
         mut values: Vec<f64>,
     ) -> Canvas {
         let boxes: Vec<Option<PixelBox>> = models
-            .iter()
+            .par_iter()
+            .with_min_len(1024)
             .map(|m| m.as_ref().and_then(|m| m.pixel_box(width, height)))
             .collect();
         // (a new buffer is zeroed as it is filled, in parallel: its bands need not be zeroed
@@ -2917,24 +2931,20 @@ impl Plausible {
                 && f.params.amplitude > 0.0
                 && f.params.amplitude.is_finite()
         };
-        let mut sig: Vec<f64> = fits
-            .iter()
-            .filter(usable)
-            .map(|f| (f.params.sigma_x * f.params.sigma_y).sqrt())
-            .collect();
-        let mut amp: Vec<f64> = fits
-            .iter()
-            .filter(usable)
-            .map(|f| f.params.amplitude)
-            .collect();
         // (no usable fit: no bound)
-        let median = |v: &mut Vec<f64>| {
-            let m = bostrack_core::median(v);
+        let median = |get: fn(&DotFit) -> f64| {
+            let mut v: Vec<f64> = fits.iter().filter(usable).map(get).collect();
+            let m = bostrack_core::median(&mut v);
             if m.is_nan() { f64::INFINITY } else { m }
         };
+        // (the two medians side by side)
+        let (sig, amp) = rayon::join(
+            || median(|f| (f.params.sigma_x * f.params.sigma_y).sqrt()),
+            || median(|f| f.params.amplitude),
+        );
         Plausible {
-            max_sigma: MAX_SIGMA_RATIO * median(&mut sig),
-            max_amplitude: MAX_AMPLITUDE_RATIO * median(&mut amp),
+            max_sigma: MAX_SIGMA_RATIO * sig,
+            max_amplitude: MAX_AMPLITUDE_RATIO * amp,
         }
     }
 
