@@ -7,6 +7,7 @@ use crate::error::PipelineError;
 use crate::table::CsvTable;
 use bostrack_core::table::optional_scientific as si;
 use bostrack_displacement::{COLUMNS, write_row};
+use rayon::prelude::*;
 use std::fs;
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -81,24 +82,39 @@ fn dots_csv(result: &FrameResult) -> std::io::Result<Vec<u8>> {
     if result.physical.is_some() {
         columns.extend(PHYSICAL_COLUMNS);
     }
-    let mut t = CsvTable::new(Vec::with_capacity(250 * (dots.len() + 1)), &columns)?;
-    let mut cells: [String; COLUMNS.len()] = Default::default();
-    let mut row: Vec<String> = Vec::with_capacity(columns.len());
-    for (k, d) in dots.iter().enumerate() {
-        write_row(d, &mut cells);
-        let Some(p) = result.physical.as_ref().map(|v| v[k]) else {
-            t.row(&cells)?;
-            continue;
-        };
-        let pair = |v: Option<[f64; 2]>| [si(v.map(|a| a[0])), si(v.map(|a| a[1]))];
-        row.clear();
-        row.extend(cells.iter().cloned());
-        row.extend(pair(p.position_m));
-        row.extend(pair(p.gradient));
-        row.extend(pair(p.u_gradient));
-        t.row(&row)?;
+    let width = columns.len();
+    // the rows in blocks of dots formatted in parallel, joined in dot order after the header
+    // (one thread formatted a real frame's 12,236 rows in ~14 ms, all of it serial)
+    const BLOCK: usize = 1024;
+    let blocks: Vec<std::io::Result<Vec<u8>>> = dots
+        .par_chunks(BLOCK)
+        .enumerate()
+        .map(|(b, block)| {
+            let mut t = CsvTable::body(Vec::with_capacity(250 * block.len()), width);
+            let mut cells: [String; COLUMNS.len()] = Default::default();
+            let mut row: Vec<String> = Vec::with_capacity(width);
+            for (k, d) in block.iter().enumerate() {
+                write_row(d, &mut cells);
+                let Some(p) = result.physical.as_ref().map(|v| v[b * BLOCK + k]) else {
+                    t.row(&cells)?;
+                    continue;
+                };
+                let pair = |v: Option<[f64; 2]>| [si(v.map(|a| a[0])), si(v.map(|a| a[1]))];
+                row.clear();
+                row.extend(cells.iter().cloned());
+                row.extend(pair(p.position_m));
+                row.extend(pair(p.gradient));
+                row.extend(pair(p.u_gradient));
+                t.row(&row)?;
+            }
+            t.finish()
+        })
+        .collect();
+    let mut out = CsvTable::new(Vec::with_capacity(250 * (dots.len() + 1)), &columns)?.finish()?;
+    for b in blocks {
+        out.extend_from_slice(&b?);
     }
-    t.finish()
+    Ok(out)
 }
 
 /// The text of `density.csv` ([`DENSITY_COLUMNS`], one row per dot of `dots.csv`), or `None`
