@@ -64,8 +64,9 @@ impl Gaussian2D {
             * self.sigma_y
             * (1.0 - self.rho * self.rho).sqrt()
     }
-    /// Whether every parameter is finite and the shape is valid (sigmas > 0, |rho| < 1).
-    pub fn is_valid(&self) -> bool {
+    /// The seven parameters in their order of declaration: `[x0, y0, amplitude, sigma_x,
+    /// sigma_y, rho, background]`.
+    pub fn to_array(&self) -> [f64; 7] {
         [
             self.x0,
             self.y0,
@@ -75,8 +76,10 @@ impl Gaussian2D {
             self.rho,
             self.background,
         ]
-        .iter()
-        .all(|v| v.is_finite())
+    }
+    /// Whether every parameter is finite and the shape is valid (sigmas > 0, |rho| < 1).
+    pub fn is_valid(&self) -> bool {
+        self.to_array().iter().all(|v| v.is_finite())
             && self.sigma_x > 0.0
             && self.sigma_y > 0.0
             && self.rho.abs() < 1.0

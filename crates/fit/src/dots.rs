@@ -721,6 +721,7 @@ fn look_theta(
     fit: &DotFit,
     looked: &Looked,
     sampling: FitSampling,
+    model: Option<&NeighbourModel>,
 ) -> Option<crate::eval::Theta> {
     if fit.status != FitStatus::Converged
         || fit
@@ -730,6 +731,16 @@ fn look_theta(
         || sampling == FitSampling::Integrated
     {
         return None;
+    }
+    // the dot's neighbour model, made of these very parameters with the same sampling, holds
+    // the θ computed below where it is a point model (`NeighbourModel::new`: the pixel-blurred θ
+    // exactly where the conditional σ allows the point model, as here; the θ itself with point
+    // sampling): taken from there, without its ~10 calls of libm
+    if let Some(m) = model
+        && m.sampling == Sampling::Point
+        && m.made_of(&fit.params)
+    {
+        return Some(m.theta);
     }
     let th = theta_from_gaussian(&fit.params);
     if sampling == FitSampling::Auto && conditional_sigma(&th) < AUTO_SIGMA {
@@ -1725,7 +1736,7 @@ impl<'a> Iteration<'a> {
                     // those of the dot's own model there, the look adds that model back to the
                     // window from its own rendering (the same dot: one rendering, not two)
                     let look_at = from.as_ref().and_then(|(from, looked, ..)| {
-                        look_theta(&f.ws, from, looked, cfg.sampling)
+                        look_theta(&f.ws, from, looked, cfg.sampling, hood.models[i].as_ref())
                     });
                     let own_back = look_at.and(canvas.as_ref()).and_then(|c| {
                         let m = hood.models[i].as_ref()?;
@@ -2975,6 +2986,8 @@ struct NeighbourModel {
     y0: f64,
     rx: f64,
     ry: f64,
+    /// The parameters it was made of ([`NeighbourModel::made_of`]).
+    params: Gaussian2D,
 }
 
 impl NeighbourModel {
@@ -2997,7 +3010,13 @@ impl NeighbourModel {
             y0: g.y0,
             rx: REACH_SIGMAS * g.sigma_x,
             ry: REACH_SIGMAS * g.sigma_y,
+            params: *g,
         })
+    }
+
+    /// Whether the model was made of exactly these parameters (bit for bit).
+    fn made_of(&self, g: &Gaussian2D) -> bool {
+        self.params.to_array().map(f64::to_bits) == g.to_array().map(f64::to_bits)
     }
 
     /// The pixels whose area meets the 5σ box, clipped to a `width × height` image.
@@ -3450,6 +3469,7 @@ mod tests {
                 y0,
                 rx,
                 ry,
+                params: bostrack_core::Gaussian2D::circular(x0, y0, 1.0, rx / 5.0, 0.0),
             };
             let b = m.pixel_box(usize::MAX, usize::MAX);
             for (wx, wy, w, h) in [(0, 0, 13, 11), (-4, -3, 9, 9), (6, 5, 7, 3), (30, 0, 20, 9)] {

@@ -259,15 +259,7 @@ mod tests {
     }
 
     fn set(g: &Gaussian2D, k: usize, v: f64) -> Gaussian2D {
-        let mut p = [
-            g.x0,
-            g.y0,
-            g.amplitude,
-            g.sigma_x,
-            g.sigma_y,
-            g.rho,
-            g.background,
-        ];
+        let mut p = g.to_array();
         p[k] = v;
         Gaussian2D {
             x0: p[0],
