@@ -249,7 +249,14 @@ pub struct FitMemory {
     /// The neighbour iteration linearised at these fits ([`FitMemory::with_map`]), for the
     /// parts of a gradient frame that did not move.
     map: Option<std::sync::Arc<crate::coupling::Coupling>>,
+    /// The neighbour models the iteration ended with, and the sampling they were made for: a
+    /// frame's first models are these moved to its prior's positions where nothing else
+    /// changed ([`NeighbourModel::moved_to`]).
+    models: Option<KnownModels>,
 }
+
+/// Neighbour models of a fit's dots, by dot, made for `FitSampling` (see [`FitMemory`]).
+type KnownModels = (FitSampling, std::sync::Arc<Vec<Option<NeighbourModel>>>);
 
 impl FitMemory {
     /// The memory of `items` (an empty one unless `remember`: a copy of ~0.5 kB per dot);
@@ -265,6 +272,7 @@ impl FitMemory {
                 .collect(),
             links: None,
             map: None,
+            models: None,
         }
     }
 
@@ -293,6 +301,7 @@ impl FitMemory {
             // frame's noise)
             links: self.links.clone(),
             map: self.map.clone(),
+            models: self.models.clone(),
         }
     }
 
@@ -326,7 +335,7 @@ impl FitMemory {
             && cfg.neighbours == Neighbours::Subtract
             && cfg.estimator == Estimator::Lsg
         {
-            let hood = Neighbourhood::new(prior, seeds, cfg.sampling);
+            let hood = Neighbourhood::with_known(prior, seeds, cfg.sampling, m.models.as_ref());
             m.map = Some(std::sync::Arc::new(coupling_map(
                 &hood, prior, cfg, img, mask, noise,
             )));
@@ -420,7 +429,9 @@ pub fn refit_dots_remembered(
         it.links_from = memory
             .filter(|_| coupling.is_none())
             .and_then(|m| m.links.as_ref());
-        let mut hood = Neighbourhood::new(coupling.map_or(prior, |c| &c.fits), seeds, cfg.sampling);
+        let known = memory.and_then(|m| m.models.as_ref());
+        let first_fits = coupling.map_or(prior, |c| &c.fits);
+        let mut hood = Neighbourhood::with_known(first_fits, seeds, cfg.sampling, known);
         hood.set_ghosts(it.ghosts(prior, &hood));
         let first = it.pass(
             prior,
@@ -1320,6 +1331,10 @@ impl<'a> Iteration<'a> {
                 let mut memory = FitMemory::of(&items, self.remember, self.first_steps);
                 if self.remember {
                     memory.links = Some(links.memory(self.seeds));
+                    memory.models = Some((
+                        self.cfg.sampling,
+                        std::sync::Arc::new(hood.models[..self.seeds.len()].to_vec()),
+                    ));
                 }
                 return (self.finish(items, &hood, &links), report, memory);
             }
@@ -1933,9 +1948,34 @@ struct Neighbourhood<'a> {
 impl<'a> Neighbourhood<'a> {
     /// The models of `fits` (the first ones of an iteration: they also set the gate).
     fn new(fits: &[DotFit], seeds: &'a [Seed], sampling: FitSampling) -> Neighbourhood<'a> {
+        Neighbourhood::with_known(fits, seeds, sampling, None)
+    }
+
+    /// [`Neighbourhood::new`], each model taken from `known` (the same dot's model in another
+    /// fit of the same seeds, made for the same sampling) where only its position differs
+    /// ([`NeighbourModel::moved_to`]: the same model, without its ~11 calls of libm).
+    fn with_known(
+        fits: &[DotFit],
+        seeds: &'a [Seed],
+        sampling: FitSampling,
+        known: Option<&KnownModels>,
+    ) -> Neighbourhood<'a> {
         let gate = Plausible::of(fits);
-        let models: Vec<Option<NeighbourModel>> =
-            fits.par_iter().map(|f| gate.model(f, sampling)).collect();
+        let known = known
+            .filter(|(s, k)| *s == sampling && k.len() == fits.len())
+            .map(|(_, k)| k.as_slice());
+        let models: Vec<Option<NeighbourModel>> = fits
+            .par_iter()
+            .enumerate()
+            .map(|(i, f)| {
+                if !gate.admits(f) {
+                    return None;
+                }
+                known
+                    .and_then(|k| k[i].as_ref()?.moved_to(f))
+                    .or_else(|| NeighbourModel::new(f, sampling))
+            })
+            .collect();
         let index = NeighbourIndex::new(&models);
         Neighbourhood {
             seeds,
@@ -2976,6 +3016,7 @@ impl Plausible {
 }
 
 /// A fitted dot as it is subtracted from its neighbours' windows.
+#[derive(Clone, Debug)]
 struct NeighbourModel {
     /// Rendering parameters: the pixel-blurred dot with point sampling where `auto` sampling
     /// allows it (one `exp_grid`, no per-pixel correction), the fitted dot otherwise.
@@ -3012,6 +3053,27 @@ impl NeighbourModel {
             ry: REACH_SIGMAS * g.sigma_y,
             params: *g,
         })
+    }
+
+    /// This model moved to the position of `f`, where `f` differs from the parameters it was
+    /// made of in its position alone (bit for bit): then exactly [`NeighbourModel::new`] of `f`
+    /// (θ's position is the centre itself, which neither the pixel blur nor the choice of
+    /// sampling reads).
+    fn moved_to(&self, f: &DotFit) -> Option<NeighbourModel> {
+        let (a, b) = (self.params.to_array(), f.params.to_array());
+        let same = a[2..]
+            .iter()
+            .zip(&b[2..])
+            .all(|(x, y)| x.to_bits() == y.to_bits());
+        if !(same && f.status.is_ok() && f.params.is_valid()) {
+            return None;
+        }
+        let mut m = self.clone();
+        let g = &f.params;
+        m.theta[crate::eval::IX] = g.x0;
+        m.theta[crate::eval::IY] = g.y0;
+        (m.x0, m.y0, m.params) = (g.x0, g.y0, *g);
+        Some(m)
     }
 
     /// Whether the model was made of exactly these parameters (bit for bit).
@@ -3448,6 +3510,76 @@ mod tests {
         for x in xs {
             assert_eq!(super::floor_i64(x), x.floor() as i64, "{x}");
         }
+    }
+
+    /// A model moved to a fit that differs in its position alone is that fit's model, bit for
+    /// bit, for every sampling and on both sides of the point model's threshold; any other
+    /// change is not a move.
+    #[test]
+    fn a_moved_model_is_the_model_of_the_moved_fit() {
+        use super::{FitSampling, NeighbourModel};
+        use bostrack_core::{DotFit, DotFlags, FitStatus, Gaussian2D, GridIndex};
+        let fit = |g: Gaussian2D| DotFit {
+            index: GridIndex::new(3, 4),
+            params: g,
+            crlb_x: 0.01,
+            crlb_y: 0.01,
+            rms: 1.0,
+            iterations: 5,
+            status: FitStatus::Converged,
+            flags: DotFlags::NONE,
+        };
+        let bits = |m: &NeighbourModel| {
+            let mut v: Vec<u64> = m.theta.iter().map(|t| t.to_bits()).collect();
+            v.extend([m.x0, m.y0, m.rx, m.ry].map(f64::to_bits));
+            v.extend(m.params.to_array().map(f64::to_bits));
+            (v, m.sampling)
+        };
+        let mut checked = 0;
+        for sampling in [
+            FitSampling::Auto,
+            FitSampling::Point,
+            FitSampling::Integrated,
+        ] {
+            for (sx, sy, rho) in [(1.3, 1.1, 0.4), (0.35, 0.3, -0.2), (0.6, 0.9, 0.0)] {
+                let g = Gaussian2D {
+                    x0: 10.25,
+                    y0: 7.5,
+                    amplitude: 800.0,
+                    sigma_x: sx,
+                    sigma_y: sy,
+                    rho,
+                    background: 90.0,
+                };
+                let m = NeighbourModel::new(&fit(g), sampling).unwrap();
+                for (dx, dy) in [(0.0, 0.0), (0.37, -1.2), (-41.9, 13.03)] {
+                    let moved = Gaussian2D {
+                        x0: g.x0 + dx,
+                        y0: g.y0 + dy,
+                        ..g
+                    };
+                    let want = NeighbourModel::new(&fit(moved), sampling).unwrap();
+                    let got = m.moved_to(&fit(moved)).unwrap();
+                    assert_eq!(
+                        bits(&got),
+                        bits(&want),
+                        "{sampling:?} {sx} {sy} {rho} {dx} {dy}"
+                    );
+                    checked += 1;
+                }
+                let wider = Gaussian2D {
+                    sigma_x: sx * (1.0 + 1e-15),
+                    ..g
+                };
+                assert!(m.moved_to(&fit(wider)).is_none());
+                let failed = DotFit {
+                    status: FitStatus::NotFitted,
+                    ..fit(g)
+                };
+                assert!(m.moved_to(&failed).is_none());
+            }
+        }
+        assert_eq!(checked, 27);
     }
 
     /// `clip_to_box` keeps exactly the pixels of the window inside the model's pixel box (the
