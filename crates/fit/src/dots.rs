@@ -3,7 +3,7 @@
 use crate::FitError;
 use crate::config::{AUTO_SIGMA, Estimator, FitConfig, FitSampling, Neighbours};
 use crate::error::check_mask;
-use crate::eval::{IA, conditional_sigma, pixel_blur, theta_from_gaussian};
+use crate::eval::{IA, conditional_sigma, theta_from_gaussian};
 use crate::fit::Fitter;
 use crate::joint::JointDot;
 use bostrack_core::{
@@ -754,14 +754,14 @@ fn look_theta(
         return Some(m.theta);
     }
     let th = theta_from_gaussian(&fit.params);
-    if sampling == FitSampling::Auto && conditional_sigma(&th) < AUTO_SIGMA {
+    if sampling != FitSampling::Auto {
+        return Some(th);
+    }
+    let (cs, sx, sy, r) = crate::eval::blur_parts(&th);
+    if cs < AUTO_SIGMA {
         return None;
     }
-    Some(if sampling == FitSampling::Auto {
-        pixel_blur(&th)
-    } else {
-        th
-    })
+    Some(crate::eval::blur_with(&th, sx, sy, r))
 }
 
 /// Adds `amp` times the rendering in `ws.tmp` (over the window) back to the data over the
@@ -3038,10 +3038,15 @@ impl NeighbourModel {
             return None;
         }
         let th = theta_from_gaussian(g);
+        let point = |th: &crate::eval::Theta| {
+            let (cs, sx, sy, r) = crate::eval::blur_parts(th);
+            (cs >= AUTO_SIGMA).then(|| crate::eval::blur_with(th, sx, sy, r))
+        };
         let (theta, sampling) = match sampling {
-            FitSampling::Auto if conditional_sigma(&th) >= AUTO_SIGMA => {
-                (pixel_blur(&th), Sampling::Point)
-            }
+            FitSampling::Auto => match point(&th) {
+                Some(b) => (b, Sampling::Point),
+                None => (th, FitSampling::Auto.image_model()),
+            },
             s => (th, s.image_model()),
         };
         Some(NeighbourModel {

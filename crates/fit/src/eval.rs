@@ -90,10 +90,32 @@ pub(crate) fn conditional_sigma(t: &Theta) -> f64 {
     t[IU].min(t[IV]).exp() * (1.0 - r * r).max(0.0).sqrt()
 }
 
+/// The shape of θ as [`pixel_blur`] and [`conditional_sigma`] both need it, each `exp` and
+/// `tanh` once: `(conditional σ, σx, σy, ρ)`, the values of those functions' own calls bit for
+/// bit (`exp(min(u, v))` is one of the two exponentials: `min` returns one of its arguments).
+pub(crate) fn blur_parts(t: &Theta) -> (f64, f64, f64, f64) {
+    let (sx, sy, r) = (t[IU].exp(), t[IV].exp(), t[IT].tanh());
+    let m = t[IU].min(t[IV]);
+    let em = if m.to_bits() == t[IU].to_bits() {
+        sx
+    } else if m.to_bits() == t[IV].to_bits() {
+        sy
+    } else {
+        m.exp()
+    };
+    (em * (1.0 - r * r).max(0.0).sqrt(), sx, sy, r)
+}
+
 /// θ of the pixel-blurred dot: covariance Σ + I/12, amplitude scaled to the same volume
 /// (`A·sqrt(det Σ / det Σ')`); centre and background unchanged.
 pub(crate) fn pixel_blur(t: &Theta) -> Theta {
     let (sx, sy, r) = (t[IU].exp(), t[IV].exp(), t[IT].tanh());
+    blur_with(t, sx, sy, r)
+}
+
+/// [`pixel_blur`] of θ whose `exp(u)`, `exp(v)` and `tanh(t)` are `sx`, `sy` and `r`
+/// ([`blur_parts`]).
+pub(crate) fn blur_with(t: &Theta, sx: f64, sy: f64, r: f64) -> Theta {
     let (vx, vy) = (sx * sx + PIXEL_VAR, sy * sy + PIXEL_VAR);
     let c = r * sx * sy;
     let det = sx * sx * sy * sy * (1.0 - r * r);
@@ -1569,6 +1591,31 @@ mod tests {
         let mut ws = Workspace::default();
         ws.resize(win.x, win.y, win.width, win.height);
         ws
+    }
+
+    /// The shared shape values are the two functions' own, bit for bit (equal, unequal and
+    /// non-finite log-sigmas, every sign of the correlation).
+    #[test]
+    fn blur_parts_are_the_functions_values() {
+        let mut checked = 0;
+        for u in [-1.7, -0.3, 0.0, 0.2, 1.1, f64::NAN] {
+            for v in [-1.7, -0.3, 0.0, 0.2, 1.1, f64::NAN] {
+                for t in [-2.0, -0.4, 0.0, 0.7, 3.5] {
+                    let th = [3.2, -1.5, 120.0, u, v, t, 40.0];
+                    let (cs, sx, sy, r) = blur_parts(&th);
+                    assert_eq!(
+                        cs.to_bits(),
+                        conditional_sigma(&th).to_bits(),
+                        "{u} {v} {t}"
+                    );
+                    let a = pixel_blur(&th).map(f64::to_bits);
+                    let b = blur_with(&th, sx, sy, r).map(f64::to_bits);
+                    assert_eq!(a, b, "{u} {v} {t}");
+                    checked += 1;
+                }
+            }
+        }
+        assert_eq!(checked, 180);
     }
 
     #[test]
