@@ -3340,7 +3340,6 @@ type Keyed = ((i64, i64), f64);
 
 /// Fitted dots bucketed on a coarse grid, for finding the neighbours of a window.
 struct NeighbourIndex {
-    cell: f64,
     reach: f64,
     /// Grid origin (cell coordinates of bucket 0) and size.
     cx0: i64,
@@ -3385,7 +3384,6 @@ impl NeighbourIndex {
 
     /// The index of points given by their buckets and reaches.
     fn of_keys(keyed: &[Option<Keyed>]) -> NeighbourIndex {
-        let cell = Self::CELL;
         let mut reach: f64 = 0.0;
         let (mut lo, mut hi) = ((i64::MAX, i64::MAX), (i64::MIN, i64::MIN));
         for &((kx, ky), r) in keyed.iter().flatten() {
@@ -3395,7 +3393,6 @@ impl NeighbourIndex {
         }
         if lo.0 > hi.0 {
             return NeighbourIndex {
-                cell,
                 reach,
                 cx0: 0,
                 cy0: 0,
@@ -3425,7 +3422,6 @@ impl NeighbourIndex {
             }
         }
         NeighbourIndex {
-            cell,
             reach,
             cx0: lo.0,
             cy0: lo.1,
@@ -3438,7 +3434,7 @@ impl NeighbourIndex {
 
     /// The bucket coordinates of a model's centre.
     fn key(&self, m: &NeighbourModel) -> (i64, i64) {
-        (floor_i64(m.x0 / self.cell), floor_i64(m.y0 / self.cell))
+        Self::key_of(m.x0, m.y0)
     }
 
     /// Writes into `out` the indices of the fitted dots whose centre is within the largest
@@ -3449,8 +3445,8 @@ impl NeighbourIndex {
             return;
         }
         let cells = |lo: f64, hi: f64, c0: i64, n: usize| {
-            let a = (floor_i64(lo / self.cell) - c0).max(0);
-            let b = (floor_i64(hi / self.cell) - c0).min(n as i64 - 1);
+            let a = (floor_i64(lo / Self::CELL) - c0).max(0);
+            let b = (floor_i64(hi / Self::CELL) - c0).min(n as i64 - 1);
             (a, b)
         };
         let (x0, x1) = cells(

@@ -422,7 +422,6 @@ pub fn process_image(
     // parallel
     let valid: Vec<&PairDot> = dots.iter().filter(|d| d.valid).collect();
     type Get = fn(&PairDot) -> Option<f64>;
-    let axis = |a: usize, v: Option<[f64; 2]>| v.map(|v| v[a]);
     let gets: [Get; 16] = [
         |d| d.displacement.map(|v| v[0].hypot(v[1])),
         |d| d.u_d.map(|v| v[0].hypot(v[1])),
@@ -447,7 +446,7 @@ pub fn process_image(
         || {
             [0, 1]
                 .par_iter()
-                .map(|&a| percentile(valid.iter().filter_map(|d| axis(a, d.ar)), 99.0))
+                .map(|&a| percentile(valid.iter().filter_map(|d| d.ar.map(|v| v[a])), 99.0))
                 .collect()
         },
     );
