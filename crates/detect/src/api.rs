@@ -5,7 +5,7 @@ use crate::acf;
 use crate::classify::{Ctx, Neighbourhoods, PAR_MIN, Site, Template, classify, interstitial_noise};
 use crate::filter::{DotMap, FilterParams, Maximum, Peak, dist2, nearest_strong_of};
 use crate::grow::{IndexGrid, find_start, grow};
-use crate::linalg::median;
+use crate::linalg::{hypot_exceeds, median};
 use crate::map::GridMap;
 use crate::size::{Patch, fit_sigma};
 use crate::{DetectConfig, DetectError, LatticeKind};
@@ -936,6 +936,8 @@ pub fn track(
             }
             None
         })
+        .collect::<Vec<Option<(f64, usize)>>>()
+        .into_iter()
         .flatten()
         .collect();
     // Where the true displacement exceeds half a spacing, the nearest peak is a neighbour's
@@ -944,10 +946,14 @@ pub fn track(
     // displacement of the largest connected group of consistent dots under a quarter spacing,
     // then of the next largest group for what growth from there cannot reach.
     let mut comp = vec![usize::MAX; n];
+    // each consistent dot's displacement length (from `starts`; the groups' members are among
+    // them), and whether it is small
+    let mut dn_of = vec![f64::INFINITY; n];
     let small: Vec<bool> = {
         let mut v = vec![false; n];
         for &(dn, k) in &starts {
             v[k] = dn < 0.25 * s;
+            dn_of[k] = dn;
         }
         v
     };
@@ -974,15 +980,14 @@ pub fn track(
         groups.push(members);
     }
     groups.sort_by_key(|g| std::cmp::Reverse(g.len()));
-    let dnorm = |k: usize| first[k].map_or(f64::INFINITY, |p| norm(disp(&p, k)));
     let mut ordered: Vec<(f64, usize)> = groups
         .iter()
         .filter_map(|g| {
             g.iter()
                 .copied()
-                .min_by(|&a, &b| dnorm(a).total_cmp(&dnorm(b)))
+                .min_by(|&a, &b| dn_of[a].total_cmp(&dn_of[b]))
         })
-        .map(|k| (dnorm(k), k))
+        .map(|k| (dn_of[k], k))
         .collect();
     // Then every other consistent dot, smallest displacement first (isolated parts).
     // Stable by displacement: `starts` is in index order, so ties keep the lower index first.
@@ -1058,8 +1063,9 @@ pub fn track(
             pred_disp[t] = Some(pd);
             let c = [q[t][0] + pd[0], q[t][1] + pd[1]];
             // The disc of r2 around c lies inside the first pass's disc of r1 around q[t] (with
-            // a margin far above rounding): its maxima are among those kept.
-            let inside = pd[0].hypot(pd[1]) + r2 <= r1 - 1e-6;
+            // a margin far above rounding): its maxima are among those kept. (Either branch
+            // finds the same maxima there; this one reads fewer.)
+            let inside = !hypot_exceeds(pd[0], pd[1], r1 - 1e-6 - r2);
             let found = if inside {
                 buf.clear();
                 dmap.maxima_within(&maxima[maxima_at[t]..maxima_at[t + 1]], c, r2, &mut buf);

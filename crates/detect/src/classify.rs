@@ -3,7 +3,7 @@
 
 use crate::filter::{Peak, dist2};
 use crate::grow::{IndexGrid, Ring1};
-use crate::linalg::{gauss_samples, median, round_i64, window_centred};
+use crate::linalg::{gauss_samples, hypot_exceeds, median, round_i64, window_centred};
 use crate::{DetectConfig, LatticeKind};
 use bostrack_core::{DotFlags, GridIndex, Image, Mask, Seed, Window};
 use rayon::prelude::*;
@@ -973,7 +973,7 @@ pub(crate) fn classify(
                     toy.clear();
                     let sh = shape[k];
                     let own_off = [c[0] - sites[k].predicted[0], c[1] - sites[k].predicted[1]];
-                    let check_off = own_off[0].hypot(own_off[1]) > 0.1 * s;
+                    let check_off = hypot_exceeds(own_off[0], own_off[1], 0.1 * s);
                     let check_shape = strong(k)
                         && ((sh.size / gsize - 1.0).abs() > 0.2
                             || sh.elongation > 1.2 * gelong
@@ -999,7 +999,7 @@ pub(crate) fn classify(
                         }
                         if check_off {
                             let off = [own_off[0] - median(tox), own_off[1] - median(toy)];
-                            if off[0].hypot(off[1]) > 0.25 * s {
+                            if hypot_exceeds(off[0], off[1], 0.25 * s) {
                                 flags.insert(DotFlags::DEFECT);
                             }
                         }

@@ -96,6 +96,24 @@ pub(crate) fn round_exact(x: f64) -> f64 {
     r.copysign(x) // -0.0 for small negative x, as `round`
 }
 
+/// Exactly `x.hypot(y) > t`, without libm's `hypot` where the sum of squares decides (nearly
+/// always): `x² + y²` rounded is within a few ulp of its value and `hypot` within one ulp of
+/// its root, so beyond a relative margin of 1e-12 either side of `t²` the answer is known; at
+/// the margin, with a non-finite input, or where the squares may underflow, `hypot` decides.
+#[inline]
+pub(crate) fn hypot_exceeds(x: f64, y: f64, t: f64) -> bool {
+    let (s, t2) = (x * x + y * y, t * t);
+    if t > 0.0 && s.is_finite() && t2.is_finite() && t2 >= 1e-280 {
+        if s > t2 * (1.0 + 1e-12) {
+            return true;
+        }
+        if s < t2 * (1.0 - 1e-12) {
+            return false;
+        }
+    }
+    x.hypot(y) > t
+}
+
 /// Round half away from zero without a library call (the baseline x86-64 target has no
 /// rounding instruction); exact for |x| < 2^52.
 #[inline]
@@ -159,6 +177,62 @@ mod tests {
         assert_eq!(round_i64(-2.5), -3);
         assert_eq!(round_i64(-0.4), 0);
         assert_eq!(round_i64(7.49), 7);
+    }
+
+    #[test]
+    fn hypot_exceeds_is_hypots_comparison() {
+        // a deterministic spread of lengths and thresholds, the thresholds also at the length
+        // itself and one ulp either side, plus the special values
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let special = [
+            0.0,
+            -0.0,
+            1e-320,
+            1e-160,
+            1e160,
+            1e300,
+            f64::MAX,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NAN,
+        ];
+        let mut cases = Vec::new();
+        for _ in 0..20_000 {
+            let scale = 10f64.powf(12.0 * next() - 6.0);
+            let (x, y) = ((next() - 0.5) * scale, (next() - 0.5) * scale);
+            let h = x.hypot(y);
+            for t in [h, h.next_up(), h.next_down(), scale * next(), 0.1 * h, -h] {
+                cases.push((x, y, t));
+            }
+        }
+        for &a in &special {
+            for &b in &special {
+                for t in [
+                    0.0,
+                    -0.0,
+                    -0.8,
+                    1e-150,
+                    0.8,
+                    2.0,
+                    1e300,
+                    f64::INFINITY,
+                    f64::NEG_INFINITY,
+                    f64::NAN,
+                ] {
+                    cases.push((a, b, t));
+                    cases.push((a, 0.8, t));
+                }
+            }
+        }
+        for (x, y, t) in cases {
+            assert_eq!(hypot_exceeds(x, y, t), x.hypot(y) > t, "{x:e} {y:e} {t:e}");
+        }
     }
 
     #[test]

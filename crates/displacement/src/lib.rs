@@ -64,5 +64,5 @@ pub use bostrack_model::ArVariant;
 pub use csv::{COLUMNS, DECIMALS, to_row, write_row};
 pub use pair::{
     ArShapes, DisplacementConfig, PairDot, PairInput, Quantities, ReferencePosition,
-    ReferenceSource, ReferenceStats, pair_dot, pair_dots, pixel_blurred,
+    ReferenceSource, ReferenceStats, pair_dot, pair_dot_at, pair_dots, pixel_blurred,
 };

@@ -209,8 +209,16 @@ fn finite2(v: [f64; 2]) -> Option<[f64; 2]> {
 /// Without stack statistics `u_ref`, `u_grad` and `u_d` are `None`; the per-dot CRLB of both
 /// fits stays in the records. `None` only for an input with neither record.
 pub fn pair_dot(input: &PairInput<'_>, cfg: &DisplacementConfig) -> Option<PairDot> {
+    let index = input.reference.or(input.gradient)?.index;
+    Some(pair_dot_at(input, index, cfg))
+}
+
+/// [`pair_dot`] for the dot at grid `index` (for an input with a record, that record's index
+/// gives `pair_dot`'s result; an input with neither record is an unmatched dot without
+/// quantities). For a caller that always has a record, such as the reference's, and collects
+/// the results by position.
+pub fn pair_dot_at(input: &PairInput<'_>, index: GridIndex, cfg: &DisplacementConfig) -> PairDot {
     let (r, g) = (input.reference, input.gradient);
-    let index = r.or(g)?.index;
     let mut flags = input.flags;
     for d in [r, g].into_iter().flatten() {
         flags |= d.flags;
@@ -275,7 +283,7 @@ pub fn pair_dot(input: &PairInput<'_>, cfg: &DisplacementConfig) -> Option<PairD
     }
 
     let valid = displacement.is_some() && !flags.intersects(cfg.invalid_if);
-    Some(PairDot {
+    PairDot {
         index,
         reference: r.copied(),
         gradient: g.copied(),
@@ -288,7 +296,7 @@ pub fn pair_dot(input: &PairInput<'_>, cfg: &DisplacementConfig) -> Option<PairD
         u_d,
         valid,
         flags,
-    })
+    }
 }
 
 /// [`pair_dot`] over many pairs (inputs with neither record are skipped).

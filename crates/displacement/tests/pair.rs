@@ -3,7 +3,8 @@
 use bostrack_core::{DotFit, DotFlags, FitStatus, Gaussian2D, GridIndex};
 use bostrack_displacement::{
     ArShapes, ArVariant, COLUMNS, DisplacementConfig, PairInput, Quantities, ReferencePosition,
-    ReferenceSource, ReferenceStats, pair_dot, pair_dots, pixel_blurred, to_row, write_row,
+    ReferenceSource, ReferenceStats, pair_dot, pair_dot_at, pair_dots, pixel_blurred, to_row,
+    write_row,
 };
 use bostrack_model::amplification_ratio;
 
@@ -378,4 +379,54 @@ fn unconverged_and_residual_fits_are_not_valid_by_default() {
             );
         }
     }
+}
+
+#[test]
+fn pair_dot_at_a_records_index_is_pair_dot() {
+    let r = fit(50.0, 60.0, 1000.0, 1.5, 1.3, 0.2);
+    let mut g = fit(50.4, 59.7, 800.0, 1.7, 1.4, 0.1);
+    g.index = GridIndex::new(7, -2);
+    let mut failed = fit(f64::NAN, 60.0, 1000.0, 1.5, 1.5, 0.0);
+    failed.status = FitStatus::NonFinite;
+    let configs = [
+        DisplacementConfig::default(),
+        notes(),
+        DisplacementConfig {
+            quantities: Quantities::Displacement,
+            ..DisplacementConfig::default()
+        },
+    ];
+    for cfg in &configs {
+        for (reference, gradient) in [
+            (Some(&r), Some(&g)),
+            (Some(&r), None),
+            (None, Some(&g)),
+            (Some(&r), Some(&failed)),
+        ] {
+            for stack in [None, Some(stats(10, [0.02, 0.03]))] {
+                let input = PairInput {
+                    reference,
+                    gradient,
+                    stack,
+                    flags: DotFlags::MASKED,
+                };
+                let index = reference.or(gradient).unwrap().index;
+                // (by their printed form: a failed fit's NaN is not equal to itself)
+                assert_eq!(
+                    format!("{:?}", pair_dot(&input, cfg)),
+                    format!("{:?}", Some(pair_dot_at(&input, index, cfg)))
+                );
+            }
+        }
+    }
+    // neither record: `pair_dot` has no pair, `pair_dot_at` an unmatched dot without quantities
+    let none = PairInput {
+        reference: None,
+        gradient: None,
+        stack: None,
+        flags: DotFlags::NONE,
+    };
+    assert_eq!(pair_dot(&none, &configs[0]), None);
+    let p = pair_dot_at(&none, GridIndex::new(1, 2), &configs[0]);
+    assert!(p.flags.contains(DotFlags::UNMATCHED) && !p.valid && p.displacement.is_none());
 }

@@ -431,7 +431,8 @@ impl Coupling {
     /// in position) solved with the other dots held at `held`. A linear dot's first-pass offset
     /// is brought to neighbours held at the base by adding `Σ_j M_ij (prior_j − base_j)` (the
     /// caller makes every neighbour of a linear dot [`near`] in its first pass and in its
-    /// prior, so that the map holds along every link).
+    /// prior, so that the map holds along every link). `rep_of(i, g, blurred)`: [`rep`]`(g,
+    /// blurred)` of dot `i`'s fit `g` (taken from where the caller has it already).
     ///
     /// [`near`]: Coupling::near
     pub(crate) fn frame_start(
@@ -440,6 +441,7 @@ impl Coupling {
         prior: &[DotFit],
         linear: Vec<bool>,
         held: &[DotFit],
+        rep_of: impl Fn(usize, &Gaussian2D, bool) -> Theta + Sync,
     ) -> Option<FrameState> {
         let n = first.len();
         if n != self.base.len() || prior.len() != n || linear.len() != n || held.len() != n {
@@ -452,14 +454,17 @@ impl Coupling {
             .with_min_len(256)
             .map(|i| {
                 if linear[i] {
-                    let t = rep(&first[i].params, self.blurred);
+                    let t = rep_of(i, &first[i].params, self.blurred);
                     (Some(t), self.offset_of(i, &t).unwrap_or([f64::NAN; 8]))
                 } else if self.rev[self.rev_start[i]..self.rev_start[i + 1]]
                     .iter()
                     .any(|&k| linear[k as usize])
                 {
                     // (held: needed where a linear dot links to it)
-                    let d = self.offset(i, &held[i].params).unwrap_or([0.0; 8]);
+                    let d = self.base[i]
+                        .as_ref()
+                        .and_then(|_| self.offset_of(i, &rep_of(i, &held[i].params, self.blurred)))
+                        .unwrap_or([0.0; 8]);
                     (None, d)
                 } else {
                     (None, [0.0; 8])

@@ -944,6 +944,12 @@ fn pull_of(moved: f64, share: f64) -> f64 {
     }
 }
 
+/// A later pass's record of a dot (boxed: the records of the dots it did not refit, most of
+/// them, are then a null pointer each instead of a whole record to move).
+fn boxed(_: usize, it: Option<Item>) -> Option<Box<Item>> {
+    it.map(Box::new)
+}
+
 /// Which pass [`Iteration::pass`] is: `intermediate` (loose tolerance, no weights check: the
 /// fits are refitted later), `warm` (the start is a least-squares fit of the same dot, the
 /// weights at the start are right: no check).
@@ -1161,6 +1167,7 @@ impl<'a> Iteration<'a> {
             false,
             hood,
             None,
+            boxed,
         );
         let mut after = fits.to_vec();
         hood.apply(&red, |r| &r.fit, &mut after, self.cfg.sampling);
@@ -1173,6 +1180,7 @@ impl<'a> Iteration<'a> {
             false,
             hood,
             None,
+            boxed,
         );
         let items = red
             .into_iter()
@@ -1352,6 +1360,7 @@ impl<'a> Iteration<'a> {
                 windowed,
                 &hood,
                 Some(&items),
+                boxed,
             );
             hood.apply(&next, |r| &r.fit, &mut fits, self.cfg.sampling);
             let changed = next.iter().enumerate().filter(|(_, n)| n.is_some());
@@ -1469,7 +1478,15 @@ impl<'a> Iteration<'a> {
                 }
             })
             .collect();
-        let state = map.frame_start(&first, prior, linear, &held)?;
+        // (a fit's map parameters from its neighbour model where that was made of it: the same
+        // θ, without its libm calls)
+        let rep_of = |i: usize, g: &Gaussian2D, blurred: bool| {
+            hood.models[i]
+                .as_ref()
+                .and_then(|m| m.map_rep(g, blurred))
+                .unwrap_or_else(|| crate::coupling::rep(g, blurred))
+        };
+        let state = map.frame_start(&first, prior, linear, &held, rep_of)?;
         Some(Running {
             map,
             state,
@@ -1648,18 +1665,26 @@ impl<'a> Iteration<'a> {
         hood: &Neighbourhood,
         canvas_buf: &mut Vec<f64>,
     ) -> Vec<Item> {
-        self.pass_with(prev, None, kind, tails, canvas_buf, false, hood, None)
-            .into_iter()
-            .zip(prev)
-            .map(|(it, p)| it.map_or_else(|| Item::kept(*p), |it| *it))
-            .collect()
+        // (every dot's record written in place: no box per record)
+        self.pass_with(
+            prev,
+            None,
+            kind,
+            tails,
+            canvas_buf,
+            false,
+            hood,
+            None,
+            |i, it| it.unwrap_or_else(|| Item::kept(prev[i])),
+        )
     }
 
     /// One block-Jacobi pass: every selected dot (all without `select`) refitted after
     /// subtracting its neighbours' fits of `prev`; the others keep their record of `prev`.
     /// `windowed`: render each selected window's neighbours into it instead of a canvas.
+    /// `out`: what is kept of dot `i`'s new record (`None`: not refitted), in dot order.
     #[allow(clippy::too_many_arguments)]
-    fn pass_with(
+    fn pass_with<T: Send>(
         &self,
         prev: &[DotFit],
         select: Option<&[bool]>,
@@ -1669,7 +1694,8 @@ impl<'a> Iteration<'a> {
         windowed: bool,
         hood: &Neighbourhood,
         check: Option<&[Item]>,
-    ) -> Vec<Option<Box<Item>>> {
+        out: impl Fn(usize, Option<Item>) -> T + Sync,
+    ) -> Vec<T> {
         let (img, mask, seeds, cfg, noise) =
             (self.img, self.mask, self.seeds, self.cfg, self.noise);
         // a first pass from prior fits: the Fisher matrices for its steps
@@ -1817,9 +1843,8 @@ impl<'a> Iteration<'a> {
                     Some(Item::from_fitter(fit, f, kind.looked_at))
                 },
             )
-            // (boxed: a pass's records of the dots it did not refit, most of them in the later
-            // passes, are then a null pointer each instead of a whole record to move)
-            .map(|it| it.map(Box::new))
+            .enumerate()
+            .map(|(i, it)| out(i, it))
             .collect();
         if let Some(c) = canvas {
             *canvas_buf = c.values;
@@ -3029,6 +3054,8 @@ struct NeighbourModel {
     ry: f64,
     /// The parameters it was made of ([`NeighbourModel::made_of`]).
     params: Gaussian2D,
+    /// Whether `theta` is the pixel-blurred θ of `params` (the point model of `auto` sampling).
+    blurred: bool,
 }
 
 impl NeighbourModel {
@@ -3042,12 +3069,12 @@ impl NeighbourModel {
             let (cs, sx, sy, r) = crate::eval::blur_parts(th);
             (cs >= AUTO_SIGMA).then(|| crate::eval::blur_with(th, sx, sy, r))
         };
-        let (theta, sampling) = match sampling {
+        let (theta, sampling, blurred) = match sampling {
             FitSampling::Auto => match point(&th) {
-                Some(b) => (b, Sampling::Point),
-                None => (th, FitSampling::Auto.image_model()),
+                Some(b) => (b, Sampling::Point, true),
+                None => (th, FitSampling::Auto.image_model(), false),
             },
-            s => (th, s.image_model()),
+            s => (th, s.image_model(), false),
         };
         Some(NeighbourModel {
             theta,
@@ -3057,7 +3084,17 @@ impl NeighbourModel {
             rx: REACH_SIGMAS * g.sigma_x,
             ry: REACH_SIGMAS * g.sigma_y,
             params: *g,
+            blurred,
         })
+    }
+
+    /// The linear map's parameters of `g` ([`crate::coupling::rep`]) where this point model was
+    /// made of `g` (bit for bit) and its θ is that representation: the pixel-blurred θ for a
+    /// `blurred` map, the θ itself otherwise (`NeighbourModel::new` computes it as `rep` does,
+    /// from the same `exp`, `exp` and `tanh`).
+    fn map_rep(&self, g: &Gaussian2D, blurred: bool) -> Option<crate::eval::Theta> {
+        (self.sampling == Sampling::Point && self.blurred == blurred && self.made_of(g))
+            .then_some(self.theta)
     }
 
     /// This model moved to the position of `f`, where `f` differs from the parameters it was
@@ -3513,23 +3550,41 @@ mod tests {
         }
     }
 
+    /// A converged fit of `g` (the neighbour-model tests).
+    fn converged(g: bostrack_core::Gaussian2D) -> bostrack_core::DotFit {
+        bostrack_core::DotFit {
+            index: bostrack_core::GridIndex::new(3, 4),
+            params: g,
+            crlb_x: 0.01,
+            crlb_y: 0.01,
+            rms: 1.0,
+            iterations: 5,
+            status: bostrack_core::FitStatus::Converged,
+            flags: bostrack_core::DotFlags::NONE,
+        }
+    }
+
+    /// The neighbour-model tests' dot of shape `sx`, `sy`, `rho`.
+    fn test_dot(sx: f64, sy: f64, rho: f64) -> bostrack_core::Gaussian2D {
+        bostrack_core::Gaussian2D {
+            x0: 10.25,
+            y0: 7.5,
+            amplitude: 800.0,
+            sigma_x: sx,
+            sigma_y: sy,
+            rho,
+            background: 90.0,
+        }
+    }
+
     /// A model moved to a fit that differs in its position alone is that fit's model, bit for
     /// bit, for every sampling and on both sides of the point model's threshold; any other
     /// change is not a move.
     #[test]
     fn a_moved_model_is_the_model_of_the_moved_fit() {
         use super::{FitSampling, NeighbourModel};
-        use bostrack_core::{DotFit, DotFlags, FitStatus, Gaussian2D, GridIndex};
-        let fit = |g: Gaussian2D| DotFit {
-            index: GridIndex::new(3, 4),
-            params: g,
-            crlb_x: 0.01,
-            crlb_y: 0.01,
-            rms: 1.0,
-            iterations: 5,
-            status: FitStatus::Converged,
-            flags: DotFlags::NONE,
-        };
+        use bostrack_core::{DotFit, FitStatus, Gaussian2D};
+        let fit = converged;
         let bits = |m: &NeighbourModel| {
             let mut v: Vec<u64> = m.theta.iter().map(|t| t.to_bits()).collect();
             v.extend([m.x0, m.y0, m.rx, m.ry].map(f64::to_bits));
@@ -3543,15 +3598,7 @@ mod tests {
             FitSampling::Integrated,
         ] {
             for (sx, sy, rho) in [(1.3, 1.1, 0.4), (0.35, 0.3, -0.2), (0.6, 0.9, 0.0)] {
-                let g = Gaussian2D {
-                    x0: 10.25,
-                    y0: 7.5,
-                    amplitude: 800.0,
-                    sigma_x: sx,
-                    sigma_y: sy,
-                    rho,
-                    background: 90.0,
-                };
+                let g = test_dot(sx, sy, rho);
                 let m = NeighbourModel::new(&fit(g), sampling).unwrap();
                 for (dx, dy) in [(0.0, 0.0), (0.37, -1.2), (-41.9, 13.03)] {
                     let moved = Gaussian2D {
@@ -3583,6 +3630,49 @@ mod tests {
         assert_eq!(checked, 27);
     }
 
+    /// A neighbour model's `map_rep` is `coupling::rep` of the parameters it was made of, bit
+    /// for bit, wherever it answers; it answers for every point model whose θ is that
+    /// representation (blurred from `auto`, plain from `point`), and for no other parameters.
+    #[test]
+    fn a_models_map_rep_is_the_maps_rep() {
+        use super::{FitSampling, NeighbourModel};
+        use bostrack_core::Gaussian2D;
+        let fit = converged;
+        let mut answered = 0;
+        for sampling in [
+            FitSampling::Auto,
+            FitSampling::Point,
+            FitSampling::Integrated,
+        ] {
+            for (sx, sy, rho) in [(1.3, 1.1, 0.4), (0.35, 0.3, -0.2), (1.61, 1.38, -0.93)] {
+                let g = test_dot(sx, sy, rho);
+                let m = NeighbourModel::new(&fit(g), sampling).unwrap();
+                for blurred in [true, false] {
+                    let want = crate::coupling::rep(&g, blurred).map(f64::to_bits);
+                    if let Some(t) = m.map_rep(&g, blurred) {
+                        assert_eq!(t.map(f64::to_bits), want, "{sampling:?} {sx} {blurred}");
+                        answered += 1;
+                    }
+                    // (the point model of its own sampling answers; wider parameters never)
+                    let own = match sampling {
+                        FitSampling::Auto => blurred && m.sampling == super::Sampling::Point,
+                        FitSampling::Point => !blurred,
+                        FitSampling::Integrated => false,
+                    };
+                    assert_eq!(m.map_rep(&g, blurred).is_some(), own, "{sampling:?} {sx}");
+                    let wider = Gaussian2D {
+                        sigma_x: sx * (1.0 + 1e-15),
+                        ..g
+                    };
+                    assert!(m.map_rep(&wider, blurred).is_none());
+                }
+            }
+        }
+        // auto: the one point model (the narrow dot, and the one narrow across its ρ of
+        // −0.93, are integrated); point: all three
+        assert_eq!(answered, 4);
+    }
+
     /// `clip_to_box` keeps exactly the pixels of the window inside the model's pixel box (the
     /// rule of every pixel), for boxes inside, across and outside windows anywhere.
     #[test]
@@ -3603,6 +3693,7 @@ mod tests {
                 rx,
                 ry,
                 params: bostrack_core::Gaussian2D::circular(x0, y0, 1.0, rx / 5.0, 0.0),
+                blurred: false,
             };
             let b = m.pixel_box(usize::MAX, usize::MAX);
             for (wx, wy, w, h) in [(0, 0, 13, 11), (-4, -3, 9, 9), (6, 5, 7, 3), (30, 0, 20, 9)] {

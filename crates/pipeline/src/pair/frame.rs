@@ -7,7 +7,7 @@ use crate::config::Quantities;
 use crate::error::PipelineError;
 use crate::plan::Plan;
 use bostrack_core::{DotFit, DotFlags, Image};
-use bostrack_displacement::{DisplacementConfig, PairDot, PairInput, pair_dot};
+use bostrack_displacement::{DisplacementConfig, PairDot, PairInput, pair_dot_at};
 use bostrack_match::{
     MatchConfig, MatchMode, MatchedBy, Matches, MedianTest, NearestConfig, ValidationConfig,
     match_dots, validate_at,
@@ -357,14 +357,15 @@ pub fn process_image(
     let dots: Vec<PairDot> = (0..n)
         .into_par_iter()
         .with_min_len(256)
-        .filter_map(|i| {
+        .map(|i| {
             let input = PairInput {
                 reference: Some(&ctx.fits[i]),
                 gradient: partner[i].map(|j| &m.fits[j]),
                 stack: ctx.stack_stats[i],
                 flags: flags[i],
             };
-            pair_dot(&input, &dcfg)
+            // (every dot has its reference record: `pair_dot` of it, collected by position)
+            pair_dot_at(&input, ctx.fits[i].index, &dcfg)
         })
         .collect();
     times.push("pair", sw.lap());
