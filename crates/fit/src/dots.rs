@@ -944,12 +944,6 @@ fn pull_of(moved: f64, share: f64) -> f64 {
     }
 }
 
-/// A later pass's record of a dot (boxed: the records of the dots it did not refit, most of
-/// them, are then a null pointer each instead of a whole record to move).
-fn boxed(_: usize, it: Option<Item>) -> Option<Box<Item>> {
-    it.map(Box::new)
-}
-
 /// Which pass [`Iteration::pass`] is: `intermediate` (loose tolerance, no weights check: the
 /// fits are refitted later), `warm` (the start is a least-squares fit of the same dot, the
 /// weights at the start are right: no check).
@@ -1167,7 +1161,6 @@ impl<'a> Iteration<'a> {
             false,
             hood,
             None,
-            boxed,
         );
         let mut after = fits.to_vec();
         hood.apply(&red, |r| &r.fit, &mut after, self.cfg.sampling);
@@ -1180,7 +1173,6 @@ impl<'a> Iteration<'a> {
             false,
             hood,
             None,
-            boxed,
         );
         let items = red
             .into_iter()
@@ -1360,7 +1352,6 @@ impl<'a> Iteration<'a> {
                 windowed,
                 &hood,
                 Some(&items),
-                boxed,
             );
             hood.apply(&next, |r| &r.fit, &mut fits, self.cfg.sampling);
             let changed = next.iter().enumerate().filter(|(_, n)| n.is_some());
@@ -1483,7 +1474,7 @@ impl<'a> Iteration<'a> {
         let rep_of = |i: usize, g: &Gaussian2D, blurred: bool| {
             hood.models[i]
                 .as_ref()
-                .and_then(|m| m.map_rep(g, blurred))
+                .and_then(|m| m.map_rep(g, self.cfg.sampling, blurred))
                 .unwrap_or_else(|| crate::coupling::rep(g, blurred))
         };
         let state = map.frame_start(&first, prior, linear, &held, rep_of)?;
@@ -1665,26 +1656,18 @@ impl<'a> Iteration<'a> {
         hood: &Neighbourhood,
         canvas_buf: &mut Vec<f64>,
     ) -> Vec<Item> {
-        // (every dot's record written in place: no box per record)
-        self.pass_with(
-            prev,
-            None,
-            kind,
-            tails,
-            canvas_buf,
-            false,
-            hood,
-            None,
-            |i, it| it.unwrap_or_else(|| Item::kept(prev[i])),
-        )
+        self.pass_with(prev, None, kind, tails, canvas_buf, false, hood, None)
+            .into_iter()
+            .zip(prev)
+            .map(|(it, p)| it.map_or_else(|| Item::kept(*p), |it| *it))
+            .collect()
     }
 
     /// One block-Jacobi pass: every selected dot (all without `select`) refitted after
     /// subtracting its neighbours' fits of `prev`; the others keep their record of `prev`.
     /// `windowed`: render each selected window's neighbours into it instead of a canvas.
-    /// `out`: what is kept of dot `i`'s new record (`None`: not refitted), in dot order.
     #[allow(clippy::too_many_arguments)]
-    fn pass_with<T: Send>(
+    fn pass_with(
         &self,
         prev: &[DotFit],
         select: Option<&[bool]>,
@@ -1694,8 +1677,7 @@ impl<'a> Iteration<'a> {
         windowed: bool,
         hood: &Neighbourhood,
         check: Option<&[Item]>,
-        out: impl Fn(usize, Option<Item>) -> T + Sync,
-    ) -> Vec<T> {
+    ) -> Vec<Option<Box<Item>>> {
         let (img, mask, seeds, cfg, noise) =
             (self.img, self.mask, self.seeds, self.cfg, self.noise);
         // a first pass from prior fits: the Fisher matrices for its steps
@@ -1843,8 +1825,9 @@ impl<'a> Iteration<'a> {
                     Some(Item::from_fitter(fit, f, kind.looked_at))
                 },
             )
-            .enumerate()
-            .map(|(i, it)| out(i, it))
+            // (boxed: a pass's records of the dots it did not refit, most of them in the later
+            // passes, are then a null pointer each instead of a whole record to move)
+            .map(|it| it.map(Box::new))
             .collect();
         if let Some(c) = canvas {
             *canvas_buf = c.values;
@@ -3054,8 +3037,6 @@ struct NeighbourModel {
     ry: f64,
     /// The parameters it was made of ([`NeighbourModel::made_of`]).
     params: Gaussian2D,
-    /// Whether `theta` is the pixel-blurred θ of `params` (the point model of `auto` sampling).
-    blurred: bool,
 }
 
 impl NeighbourModel {
@@ -3069,12 +3050,12 @@ impl NeighbourModel {
             let (cs, sx, sy, r) = crate::eval::blur_parts(th);
             (cs >= AUTO_SIGMA).then(|| crate::eval::blur_with(th, sx, sy, r))
         };
-        let (theta, sampling, blurred) = match sampling {
+        let (theta, sampling) = match sampling {
             FitSampling::Auto => match point(&th) {
-                Some(b) => (b, Sampling::Point, true),
-                None => (th, FitSampling::Auto.image_model(), false),
+                Some(b) => (b, Sampling::Point),
+                None => (th, FitSampling::Auto.image_model()),
             },
-            s => (th, s.image_model(), false),
+            s => (th, s.image_model()),
         };
         Some(NeighbourModel {
             theta,
@@ -3084,17 +3065,26 @@ impl NeighbourModel {
             rx: REACH_SIGMAS * g.sigma_x,
             ry: REACH_SIGMAS * g.sigma_y,
             params: *g,
-            blurred,
         })
     }
 
-    /// The linear map's parameters of `g` ([`crate::coupling::rep`]) where this point model was
-    /// made of `g` (bit for bit) and its θ is that representation: the pixel-blurred θ for a
-    /// `blurred` map, the θ itself otherwise (`NeighbourModel::new` computes it as `rep` does,
-    /// from the same `exp`, `exp` and `tanh`).
-    fn map_rep(&self, g: &Gaussian2D, blurred: bool) -> Option<crate::eval::Theta> {
-        (self.sampling == Sampling::Point && self.blurred == blurred && self.made_of(g))
-            .then_some(self.theta)
+    /// The linear map's parameters of `g` ([`crate::coupling::rep`]) where this model, made
+    /// for `sampling`, was made of `g` (bit for bit) and its θ is that representation: a point
+    /// model of `auto` (its θ pixel-blurred) for a `blurred` map, of `point` (θ itself)
+    /// otherwise. `NeighbourModel::new` computes that θ as `rep` does, from the same `exp`,
+    /// `exp` and `tanh`.
+    fn map_rep(
+        &self,
+        g: &Gaussian2D,
+        sampling: FitSampling,
+        blurred: bool,
+    ) -> Option<crate::eval::Theta> {
+        let of_blur = match sampling {
+            FitSampling::Auto => blurred,
+            FitSampling::Point => !blurred,
+            FitSampling::Integrated => false,
+        };
+        (of_blur && self.sampling == Sampling::Point && self.made_of(g)).then_some(self.theta)
     }
 
     /// This model moved to the position of `f`, where `f` differs from the parameters it was
@@ -3649,7 +3639,7 @@ mod tests {
                 let m = NeighbourModel::new(&fit(g), sampling).unwrap();
                 for blurred in [true, false] {
                     let want = crate::coupling::rep(&g, blurred).map(f64::to_bits);
-                    if let Some(t) = m.map_rep(&g, blurred) {
+                    if let Some(t) = m.map_rep(&g, sampling, blurred) {
                         assert_eq!(t.map(f64::to_bits), want, "{sampling:?} {sx} {blurred}");
                         answered += 1;
                     }
@@ -3659,12 +3649,16 @@ mod tests {
                         FitSampling::Point => !blurred,
                         FitSampling::Integrated => false,
                     };
-                    assert_eq!(m.map_rep(&g, blurred).is_some(), own, "{sampling:?} {sx}");
+                    assert_eq!(
+                        m.map_rep(&g, sampling, blurred).is_some(),
+                        own,
+                        "{sampling:?} {sx}"
+                    );
                     let wider = Gaussian2D {
                         sigma_x: sx * (1.0 + 1e-15),
                         ..g
                     };
-                    assert!(m.map_rep(&wider, blurred).is_none());
+                    assert!(m.map_rep(&wider, sampling, blurred).is_none());
                 }
             }
         }
@@ -3693,7 +3687,6 @@ mod tests {
                 rx,
                 ry,
                 params: bostrack_core::Gaussian2D::circular(x0, y0, 1.0, rx / 5.0, 0.0),
-                blurred: false,
             };
             let b = m.pixel_box(usize::MAX, usize::MAX);
             for (wx, wy, w, h) in [(0, 0, 13, 11), (-4, -3, 9, 9), (6, 5, 7, 3), (30, 0, 20, 9)] {
