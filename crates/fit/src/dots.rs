@@ -1725,7 +1725,14 @@ impl<'a> Iteration<'a> {
                     if (empty && !look_for) || select.is_some_and(|sel| !sel[i]) {
                         return None;
                     }
-                    let flags = f.load_image(img, mask, s.window);
+                    // (with a canvas: the window loaded less the canvas in one pass, the dot's
+                    // own model and its twins added back below)
+                    let flags = f.load_image_less(
+                        img,
+                        mask,
+                        s.window,
+                        canvas.as_ref().map(|c| c.values.as_slice()),
+                    );
                     let own = &prev[i];
                     let win = Window::new(f.ws.wx, f.ws.wy, f.ws.w, f.ws.h);
                     // (the tails were rendered without the ghosts)
@@ -1775,7 +1782,7 @@ impl<'a> Iteration<'a> {
                             }
                         }
                         (None, Some(canvas)) => {
-                            canvas.subtract_neighbours(&mut f.ws, i, hood, own_back.is_none());
+                            canvas.add_back_own(&mut f.ws, i, hood, own_back.is_none());
                         }
                         (None, None) if apart => {}
                         (None, None) => {
@@ -2565,7 +2572,7 @@ const BAND: usize = 32;
 /// dot (and a seed found twice), instead of rendering each of its ~8 neighbours over it: on the
 /// real sample a 17 × 17 box per dot and pass instead of ~8 windows of 9 × 9.
 struct Canvas {
-    width: usize,
+    /// Row-major, the image's width.
     values: Vec<f64>,
     /// Each model's pixel box (clipped to the image).
     boxes: Vec<Option<PixelBox>>,
@@ -2604,11 +2611,7 @@ impl Canvas {
             values.resize(width * height, 0.0);
         }
         if width == 0 || height == 0 {
-            return Canvas {
-                width,
-                values,
-                boxes,
-            };
+            return Canvas { values, boxes };
         }
         let mut bands: Vec<Vec<u32>> = vec![Vec::new(); height.div_ceil(BAND)];
         for (j, b) in boxes.iter().enumerate() {
@@ -2650,18 +2653,15 @@ impl Canvas {
                     }
                 },
             );
-        Canvas {
-            width,
-            values,
-            boxes,
-        }
+        Canvas { values, boxes }
     }
 
-    /// Subtracts from the loaded window of seed `i` every neighbour model as
-    /// [`for_each_neighbour`] does (the canvas, minus the dot's own model and any seed closer
-    /// than 1.5 px, [`Twins`]: no neighbour query per window). `own: false` leaves the dot's
-    /// own model subtracted, for a caller that adds it back itself ([`look`]'s `own_back`).
-    fn subtract_neighbours(
+    /// After the window of seed `i` was loaded less the whole canvas
+    /// ([`Fitter::load_image_less`]), adds back what [`for_each_neighbour`] does not subtract:
+    /// the dot's own model and any seed closer than 1.5 px ([`Twins`]: no neighbour query per
+    /// window). `own: false` leaves the dot's own model subtracted, for a caller that adds it
+    /// back itself ([`look`]'s `own_back`).
+    fn add_back_own(
         &self,
         ws: &mut crate::eval::Workspace,
         i: usize,
@@ -2671,18 +2671,6 @@ impl Canvas {
         let (w, h) = (ws.w, ws.h);
         if w == 0 || h == 0 {
             return;
-        }
-        let (wx, wy) = (ws.wx as usize, ws.wy as usize);
-        for j in 0..h {
-            let row = &self.values[(wy + j) * self.width + wx..][..w];
-            let k0 = j * w;
-            for ((d, kp), c) in ws.data[k0..k0 + w]
-                .iter_mut()
-                .zip(&ws.keep[k0..k0 + w])
-                .zip(row)
-            {
-                *d -= kp * c;
-            }
         }
         let win = Window::new(ws.wx, ws.wy, w, h);
         if own {

@@ -195,6 +195,20 @@ impl Fitter {
         mask: Option<&Mask>,
         window: Window,
     ) -> DotFlags {
+        self.load_image_less(img, mask, window, None)
+    }
+
+    /// [`Fitter::load_image`] less `less` (an image of the same width, row-major: a canvas of
+    /// the neighbours) over the kept pixels, in the same pass: each loaded value `v` becomes
+    /// `v − keep · c`, as a subtraction after the load would make it (`1 · c` is `c`, so a kept
+    /// pixel's value is `v − c` exactly).
+    pub(crate) fn load_image_less(
+        &mut self,
+        img: &Image,
+        mask: Option<&Mask>,
+        window: Window,
+        less: Option<&[f64]>,
+    ) -> DotFlags {
         let ws = &mut self.ws;
         let (iw, ih) = (img.width(), img.height());
         if mask.is_some_and(|m| !m.matches(img)) {
@@ -239,9 +253,17 @@ impl Fitter {
                         .sum::<usize>()
                         == cw
                 });
+            let less_row = less.map(|l| &l[y * iw + x0..][..cw]);
             if usable_row {
                 let k0 = j * cw;
-                ws.data[k0..k0 + cw].copy_from_slice(row);
+                match less_row {
+                    Some(c) => {
+                        for ((d, &v), &c) in ws.data[k0..k0 + cw].iter_mut().zip(row).zip(c) {
+                            *d = v - c;
+                        }
+                    }
+                    None => ws.data[k0..k0 + cw].copy_from_slice(row),
+                }
                 ws.keep[k0..k0 + cw].fill(1.0);
                 n_used += cw;
                 continue;
@@ -263,6 +285,9 @@ impl Fitter {
                 };
                 ws.data[k] = if usable { v } else { 0.0 };
                 ws.keep[k] = if usable { 1.0 } else { 0.0 };
+                if let Some(c) = less_row {
+                    ws.data[k] -= ws.keep[k] * c[i];
+                }
                 n_used += usable as usize;
             }
         }
@@ -1045,7 +1070,7 @@ mod tests {
     /// `load_image` (whole usable rows copied at once, the others pixel by pixel) against the
     /// rule of every pixel: a NaN or ±∞ sample, a masked pixel or one at the saturation level
     /// is left out (0, keep 0) with its flag; windows at or over the image's edges are flagged
-    /// BORDER.
+    /// BORDER. `load_image_less` is the same load with a canvas subtracted, to the bit.
     #[test]
     fn loaded_windows_follow_the_pixel_rule() {
         let (w, h) = (41, 33);
@@ -1065,6 +1090,8 @@ mod tests {
             .map(|_| rng.random_range(0.0..1.0) > 0.01)
             .collect();
         let mask = Mask::new(w, h, keep).unwrap();
+        // a canvas of neighbours to load less (`load_image_less`)
+        let canvas: Vec<f64> = (0..w * h).map(|_| rng.random_range(-50.0..400.0)).collect();
         let mut f = Fitter::new(&FitConfig::default());
         let mut rows_checked = 0;
         for (x, y, ww, wh, border) in [
@@ -1109,6 +1136,21 @@ mod tests {
                 let mut got = flags;
                 got.remove(DotFlags::BORDER);
                 assert_eq!(got, want, "window {win:?}");
+                // loaded less the canvas in the same pass: bit for bit the load, then
+                // `data −= keep · canvas` pixel by pixel
+                let (data, keep, n_used) = (f.ws.data.clone(), f.ws.keep.clone(), f.ws.n_used);
+                let less_flags = f.load_image_less(&img, m, win, Some(&canvas));
+                assert_eq!(less_flags, flags);
+                assert_eq!(f.ws.n_used, n_used);
+                for j in 0..c.height {
+                    for i in 0..c.width {
+                        let k = j * c.width + i;
+                        let cv = canvas[(c.y as usize + j) * w + c.x as usize + i];
+                        assert_eq!(f.ws.keep[k].to_bits(), keep[k].to_bits());
+                        let want = data[k] - keep[k] * cv;
+                        assert_eq!(f.ws.data[k].to_bits(), want.to_bits(), "window {win:?}");
+                    }
+                }
             }
         }
         assert!(rows_checked > 100);
