@@ -460,7 +460,8 @@ impl Coupling {
                     .iter()
                     .any(|&k| linear[k as usize])
                 {
-                    // (held: needed where a linear dot links to it)
+                    // (held: needed where a linear dot links to it; a dot without a base has
+                    // no offset, and its representation is not computed)
                     let d = self.base[i]
                         .as_ref()
                         .and_then(|_| self.offset_of(i, &rep_of(i, &held[i].params, self.blurred)))
