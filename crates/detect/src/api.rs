@@ -2,7 +2,9 @@
 //! same target, seeded by the reference detection).
 
 use crate::acf;
-use crate::classify::{Ctx, Neighbourhoods, PAR_MIN, Site, Template, classify, interstitial_noise};
+use crate::classify::{
+    Ctx, Measure, Neighbourhoods, PAR_MIN, Scratch, Site, Template, classify, interstitial_noise,
+};
 use crate::filter::{DotMap, FilterParams, Maximum, Peak, dist2, nearest_strong_of};
 use crate::grow::{IndexGrid, find_start, grow};
 use crate::linalg::{hypot_exceeds, median};
@@ -642,6 +644,7 @@ pub fn detect(
             peak,
             peak_extra: 1.0,
             window_from: None,
+            measured: None,
         });
     }
     // 6. Noise of the dot map at the cell centres, classification.
@@ -776,6 +779,246 @@ fn fallback_noise(stat: impl Fn([f64; 2]) -> Option<f64>, w: usize, h: usize, sp
     1.4826 * median(&mut dev)
 }
 
+/// The dot map that tracking's searches read. `Whole`: the whole image's. `Crop`: that of a
+/// crop of the image holding every point within `reach` of the dots still to be searched
+/// (the interior) and the filter's support around it, its binned pixels those of the whole
+/// map; inside the interior its values are the whole map's (but for the rounding of running
+/// sums that start at the crop's edge), so are its peaks. A search beyond the interior, or
+/// without a crop, reads the whole map (built once, when first needed). `Nothing`: no dot is
+/// searched.
+struct Maps<'a> {
+    image: &'a Image,
+    sign: f64,
+    fill: f64,
+    nonfinite: bool,
+    fp: FilterParams,
+    whole: std::sync::OnceLock<DotMap>,
+    source: Source,
+}
+
+enum Source {
+    Whole,
+    Crop {
+        map: DotMap,
+        /// Full-resolution position of the crop's first pixel.
+        origin: [f64; 2],
+        /// `[x0, x1, y0, y1]`: full-resolution points whose map values the crop holds
+        /// (infinite where the crop reaches the image's edge).
+        interior: [f64; 4],
+    },
+    Nothing,
+}
+
+/// A crop is made only where it is at most this share of the image (else the whole map).
+const CROP_MAX_SHARE: f64 = 0.5;
+
+impl<'a> Maps<'a> {
+    /// `around`: the points still to be searched (`None`: every dot is searched).
+    fn new(
+        image: &'a Image,
+        sign: f64,
+        fill: f64,
+        nonfinite: bool,
+        fp: &FilterParams,
+        around: Option<&[[f64; 2]]>,
+        reach: f64,
+    ) -> Self {
+        let source = match around {
+            None => Source::Whole,
+            Some([]) => Source::Nothing,
+            Some(pts) => Self::crop(image, sign, fill, nonfinite, fp, pts, reach),
+        };
+        Maps {
+            image,
+            sign,
+            fill,
+            nonfinite,
+            fp: *fp,
+            whole: std::sync::OnceLock::new(),
+            source,
+        }
+    }
+
+    fn crop(
+        image: &Image,
+        sign: f64,
+        fill: f64,
+        nonfinite: bool,
+        fp: &FilterParams,
+        pts: &[[f64; 2]],
+        reach: f64,
+    ) -> Source {
+        let k = fp.k;
+        // the filter's support: the Gaussian's 3 sigma, the box, the maximum test and the
+        // parabola's neighbours (binned px), in full-resolution px
+        let margin = (k * ((3.0 * fp.sigma_f).ceil() as usize + fp.box_half + 2)) as f64;
+        let (lo, hi) = pts.iter().fold(
+            ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]),
+            |(lo, hi), p| {
+                (
+                    [lo[0].min(p[0]), lo[1].min(p[1])],
+                    [hi[0].max(p[0]), hi[1].max(p[1])],
+                )
+            },
+        );
+        // per axis: the crop's first pixel and its end, aligned with the bins and within the
+        // whole map's extent (which drops a last partial bin); `None` when not finite
+        let span = |lo: f64, hi: f64, size: usize| -> Option<(usize, usize)> {
+            let end_max = (size / k) * k;
+            let a = ((lo - reach - margin) / k as f64).floor();
+            let b = ((hi + reach + margin + 1.0) / k as f64).ceil();
+            if !(a.is_finite() && b.is_finite()) {
+                return None;
+            }
+            let a = (a.max(0.0) as usize * k).min(end_max);
+            let b = (b.max(0.0) as usize * k).min(end_max);
+            (b > a).then_some((a, b))
+        };
+        let (w, h) = (image.width(), image.height());
+        let (Some((x0, x1)), Some((y0, y1))) = (span(lo[0], hi[0], w), span(lo[1], hi[1], h))
+        else {
+            return Source::Whole;
+        };
+        if ((x1 - x0) * (y1 - y0)) as f64 > CROP_MAX_SHARE * (w * h) as f64 {
+            return Source::Whole;
+        }
+        let crop = Image::from_fn(x1 - x0, y1 - y0, |x, y| image.row(y0 + y)[x0 + x]);
+        let map = DotMap::build(&crop, sign, fill, nonfinite, fp);
+        let inner = |a: usize, b: usize, size: usize| {
+            let lo = if a == 0 {
+                f64::NEG_INFINITY
+            } else {
+                a as f64 + margin
+            };
+            let hi = if b == (size / k) * k {
+                f64::INFINITY
+            } else {
+                b as f64 - 1.0 - margin
+            };
+            [lo, hi]
+        };
+        let [ix0, ix1] = inner(x0, x1, w);
+        let [iy0, iy1] = inner(y0, y1, h);
+        Source::Crop {
+            map,
+            origin: [x0 as f64, y0 as f64],
+            interior: [ix0, ix1, iy0, iy1],
+        }
+    }
+
+    fn whole(&self) -> &DotMap {
+        self.whole.get_or_init(|| {
+            DotMap::build(self.image, self.sign, self.fill, self.nonfinite, &self.fp)
+        })
+    }
+
+    /// The crop and its origin when the disc of `r` around `c` lies inside its interior.
+    fn crop_for(&self, c: [f64; 2], r: f64) -> Option<(&DotMap, [f64; 2])> {
+        match &self.source {
+            Source::Crop {
+                map,
+                origin,
+                interior: [x0, x1, y0, y1],
+            } if c[0] - r >= *x0 && c[0] + r <= *x1 && c[1] - r >= *y0 && c[1] + r <= *y1 => {
+                Some((map, *origin))
+            }
+            _ => None,
+        }
+    }
+
+    /// [`DotMap::local_maxima_px`]; a list made from the crop (a disc inside its interior) is
+    /// read back by [`Maps::maxima_within`] on a smaller disc inside it, from the crop too.
+    fn local_maxima_px(&self, c: [f64; 2], radius: f64, out: &mut Vec<Maximum>) {
+        match self.crop_for(c, radius) {
+            Some((map, o)) => {
+                let from = out.len();
+                map.local_maxima_px([c[0] - o[0], c[1] - o[1]], radius, out);
+                for m in &mut out[from..] {
+                    m.peak.x += o[0];
+                    m.peak.y += o[1];
+                }
+            }
+            None => self.whole().local_maxima_px(c, radius, out),
+        }
+    }
+
+    /// [`DotMap::maxima_within`] of a list from [`Maps::local_maxima_px`] of a disc that holds
+    /// this one.
+    fn maxima_within(&self, list: &[Maximum], c: [f64; 2], radius: f64, out: &mut Vec<Peak>) {
+        match self.crop_for(c, radius) {
+            Some((map, o)) => map.maxima_within(list, [c[0] - o[0], c[1] - o[1]], radius, out),
+            None => self.whole().maxima_within(list, c, radius, out),
+        }
+    }
+
+    /// [`DotMap::nearest_strong`].
+    fn nearest_strong(&self, c: [f64; 2], radius: f64, buf: &mut Vec<Peak>) -> Option<Peak> {
+        match self.crop_for(c, radius) {
+            Some((map, o)) => map
+                .nearest_strong([c[0] - o[0], c[1] - o[1]], radius, buf)
+                .map(|p| Peak {
+                    x: p.x + o[0],
+                    y: p.y + o[1],
+                    v: p.v,
+                }),
+            None => self.whole().nearest_strong(c, radius, buf),
+        }
+    }
+
+    /// [`DotMap::sample`]: from the crop inside its interior (NaN outside it, and with nothing
+    /// searched), from the whole map without a crop.
+    fn sample(&self, c: [f64; 2]) -> f64 {
+        match &self.source {
+            Source::Whole => self.whole().sample(c),
+            Source::Nothing => f64::NAN,
+            Source::Crop { .. } => self
+                .crop_for(c, 0.0)
+                .map_or(f64::NAN, |(map, o)| map.sample([c[0] - o[0], c[1] - o[1]])),
+        }
+    }
+}
+
+/// The connected groups (through `neighbours`) of the indices `k` with `member[k]`, each in
+/// the order it is reached from its lowest index (breadth first), the groups in the order of
+/// their lowest index.
+fn connected_groups(
+    member: &[bool],
+    neighbours: impl Fn(usize, &mut Vec<usize>),
+) -> Vec<Vec<usize>> {
+    let mut seen = vec![false; member.len()];
+    let mut nb = Vec::with_capacity(24);
+    let mut groups = Vec::new();
+    for k0 in 0..member.len() {
+        if !member[k0] || seen[k0] {
+            continue;
+        }
+        seen[k0] = true;
+        let mut members = vec![k0];
+        let mut head = 0;
+        while head < members.len() {
+            let k = members[head];
+            head += 1;
+            neighbours(k, &mut nb);
+            for &o in &nb {
+                if member[o] && !seen[o] {
+                    seen[o] = true;
+                    members.push(o);
+                }
+            }
+        }
+        groups.push(members);
+    }
+    groups
+}
+
+/// How far (spacings) from its reference centre a tracked dot's centroid may lie for the dot to
+/// be still (see [`track`]).
+const STILL_SPACING: f64 = 0.1;
+
+/// The least share of the seeds in the largest connected group of still dots for that group to
+/// be taken as found without a search (see [`track`]); below it every dot is searched.
+const ANCHOR_SHARE: f64 = 0.5;
+
 /// Track the dots of a reference detection into another image of the same target (gradient
 /// image, no-flow stack image): the result has the same grid indices, one seed per reference
 /// seed in the reference's order.
@@ -795,6 +1038,15 @@ fn fallback_noise(stat: impl Fn([f64; 2]) -> Option<f64>, w: usize, h: usize, sp
 /// reference centre (rounded per axis), so that a dot that moved by less than half a pixel is
 /// fitted over the pixels of its reference fit; where the reference window was cut by the
 /// image's edge, the window centred on the tracked centre.
+///
+/// Where most of the target did not move (a gradient frame's flow is local), the search is
+/// left out for the still dots: those whose template measure at the reference centre (the
+/// test and centroid of classification, started there) finds the dot within
+/// 0.1 spacing, in the largest connected group of such dots when it holds at least half of
+/// the seeds. They are taken as found at their centroids, growth starts from all of them at
+/// once, and their measure is classification's. Sites the reference found empty among them
+/// are not searched either (classification tests them at their prediction), and the dot map
+/// is built only over a crop around the dots still searched.
 pub fn track(
     image: &Image,
     mask: Option<&Mask>,
@@ -823,7 +1075,6 @@ pub fn track(
     let s = reference.spacing;
     let sigma = reference.diameter / 4.0;
     let fp = FilterParams::new(s, sigma);
-    let dmap = DotMap::build(image, sign, fill, nonfinite, &fp);
 
     let seeds = &reference.seeds;
     let n = seeds.len();
@@ -851,6 +1102,91 @@ pub fn track(
     };
     let q: Vec<[f64; 2]> = seeds.iter().map(|t| t.centre).collect();
     let disp = |p: &Peak, k: usize| [p.x - q[k][0], p.y - q[k][1]];
+    // (classification's template, the same as the one `classify` makes)
+    let tpl = Template::new(
+        sigma,
+        s,
+        reference.lattice.a,
+        reference.lattice.b,
+        cfg.lattice,
+        nonfinite,
+    );
+    // Still dots. A gradient frame's flow is local: over most of the target the template
+    // measure at a reference centre (classification's test and centroid, started there) finds
+    // its dot within `STILL_SPACING` of a spacing. The largest connected group of such dots
+    // (8-neighbours), where it holds at least `ANCHOR_SHARE` of the seeds, is taken as found
+    // at its centroids (the anchors): no search for them, growth starts from all of them, and
+    // classification takes their measure as it is. A dot that moved by a lattice vector can
+    // look still too; it lies beyond a band of moving dots, outside the largest group (as in
+    // the search below, the region of small displacement is taken to be the largest one).
+    let still: Vec<Option<(Measure, [f64; 2])>> = (0..n)
+        .into_par_iter()
+        .with_min_len(PAR_MIN)
+        .map_init(Scratch::new, |sc, k| {
+            if seeds[k].flags.contains(DotFlags::MISSING) {
+                return None;
+            }
+            let m = tpl.measure(image, sign, q[k], sigma, sc)?;
+            let c = m.blob?.centre;
+            (m.t > 0.0
+                && c.iter().all(|v| v.is_finite())
+                && dist2(c, q[k]) <= (STILL_SPACING * s).powi(2))
+            .then_some((m, c))
+        })
+        .collect();
+    let anchor: Vec<bool> = {
+        let is_still: Vec<bool> = still.iter().map(Option::is_some).collect();
+        let best = connected_groups(&is_still, |k, out| neighbours(k, 1, out))
+            .into_iter()
+            .fold(
+                Vec::new(),
+                |best, g| if g.len() > best.len() { g } else { best },
+            );
+        let mut anchor = vec![false; n];
+        if best.len() as f64 >= ANCHOR_SHARE * n as f64 {
+            for k in best {
+                anchor[k] = true;
+            }
+        }
+        anchor
+    };
+    // A site the reference found empty, among anchors (and other such sites) only, is not
+    // searched either: classification tests it at its prediction, and the fit stage looks for
+    // a dot there too. (Along a target's edges such sites would spread the map's crop.)
+    let quiet: Vec<bool> = (0..n)
+        .map(|k| {
+            seeds[k].flags.contains(DotFlags::MISSING)
+                && ring.of(k).any(|o| anchor[o])
+                && ring
+                    .of(k)
+                    .all(|o| anchor[o] || seeds[o].flags.contains(DotFlags::MISSING))
+        })
+        .collect();
+    let r1 = cfg.search_radius * s;
+    // The dot map: the whole image's, or with anchors that of a crop around the dots still to
+    // be searched (`Maps`).
+    let searched: Vec<[f64; 2]> = (0..n)
+        .filter(|&k| !anchor[k] && !quiet[k])
+        .map(|k| q[k])
+        .collect();
+    let maps = Maps::new(
+        image,
+        sign,
+        fill,
+        nonfinite,
+        &fp,
+        anchor.iter().any(|&a| a).then_some(&searched[..]),
+        r1 + 3.0 * s,
+    );
+    // an anchor's peak: its centroid, with the map's value there where the crop holds it
+    // (growth reads the values of the anchors near the searched dots only; NaN elsewhere)
+    let anchor_peak = |k: usize| {
+        still[k].map(|(_, c)| Peak {
+            x: c[0],
+            y: c[1],
+            v: maps.sample(c),
+        })
+    };
     // The median displacement of the peaks in `found` at seed k's 3x3 index neighbours, or its
     // 5x5 ones when fewer than `min` of the 3x3 have one; None when the 5x5 have fewer too.
     type Bufs = (Vec<usize>, Vec<f64>, Vec<f64>);
@@ -883,7 +1219,6 @@ pub fn track(
 
     // Pass 1: no predictor.
     let mut buf = Vec::new();
-    let r1 = cfg.search_radius * s;
     // Every maximum within r1 of each reference position is kept: the growth's searches,
     // mostly within that disc, pick from them instead of scanning the map again. Blocks of
     // seeds in parallel, joined in seed order.
@@ -900,7 +1235,13 @@ pub fn track(
                 .map(|k| {
                     let from = maxima.len();
                     at.push(from);
-                    dmap.local_maxima_px(q[k], r1, &mut maxima);
+                    if anchor[k] {
+                        return anchor_peak(k);
+                    }
+                    if quiet[k] {
+                        return None;
+                    }
+                    maps.local_maxima_px(q[k], r1, &mut maxima);
                     buf.clear();
                     buf.extend(maxima[from..].iter().map(|m| m.peak));
                     nearest_strong_of(&buf, q[k]).filter(|p| p.v > 0.0)
@@ -927,6 +1268,9 @@ pub fn track(
         .into_par_iter()
         .with_min_len(PAR_MIN)
         .map_init(new_bufs, |bufs, k| {
+            if anchor[k] {
+                return None;
+            }
             let p = first[k]?;
             if let Some(med) = neighbour_median(k, &first, 3, bufs) {
                 let d = disp(&p, k);
@@ -947,7 +1291,6 @@ pub fn track(
     // displacement is taken to be the largest connected one: the start is the smallest
     // displacement of the largest connected group of consistent dots under a quarter spacing,
     // then of the next largest group for what growth from there cannot reach.
-    let mut comp = vec![usize::MAX; n];
     // each consistent dot's displacement length (from `starts`; the groups' members are among
     // them), and whether it is small
     let mut dn_of = vec![f64::INFINITY; n];
@@ -959,38 +1302,24 @@ pub fn track(
         }
         v
     };
-    let mut groups: Vec<Vec<usize>> = Vec::new();
-    for k0 in 0..n {
-        if !small[k0] || comp[k0] != usize::MAX {
-            continue;
-        }
-        let id = groups.len();
-        let mut members = vec![k0];
-        comp[k0] = id;
-        let mut head = 0;
-        while head < members.len() {
-            let k = members[head];
-            head += 1;
-            neighbours(k, 1, &mut nb);
-            for &o in &nb {
-                if small[o] && comp[o] == usize::MAX {
-                    comp[o] = id;
-                    members.push(o);
-                }
-            }
-        }
-        groups.push(members);
-    }
+    let mut groups = connected_groups(&small, |k, out| neighbours(k, 1, out));
     groups.sort_by_key(|g| std::cmp::Reverse(g.len()));
-    let mut ordered: Vec<(f64, usize)> = groups
-        .iter()
-        .filter_map(|g| {
-            g.iter()
-                .copied()
-                .min_by(|&a, &b| dn_of[a].total_cmp(&dn_of[b]))
-        })
-        .map(|k| (dn_of[k], k))
-        .collect();
+    // (first the anchors, all at once: `usize::MAX` stands for them)
+    let anchors: Vec<usize> = (0..n).filter(|&k| anchor[k]).collect();
+    let mut ordered: Vec<(f64, usize)> = Vec::new();
+    if !anchors.is_empty() {
+        ordered.push((0.0, usize::MAX));
+    }
+    ordered.extend(
+        groups
+            .iter()
+            .filter_map(|g| {
+                g.iter()
+                    .copied()
+                    .min_by(|&a, &b| dn_of[a].total_cmp(&dn_of[b]))
+            })
+            .map(|k| (dn_of[k], k)),
+    );
     // Then every other consistent dot, smallest displacement first (isolated parts).
     // Stable by displacement: `starts` is in index order, so ties keep the lower index first.
     starts.sort_unstable_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
@@ -1025,13 +1354,28 @@ pub fn track(
             }
         }
     };
+    for &a in &anchors {
+        state[a] = St::Accepted;
+        result[a] = first[a];
+    }
+    // (quiet sites: out of growth, as after its last failed try)
+    for k in (0..n).filter(|&k| quiet[k]) {
+        state[k] = St::Failed;
+        tries[k] = 3;
+    }
     for &(_, st) in &starts {
-        if state[st] != St::Unvisited {
-            continue;
+        if st == usize::MAX {
+            for &a in &anchors {
+                push_nb(a, &mut state, &tries, &mut queue, &mut nb);
+            }
+        } else {
+            if state[st] != St::Unvisited {
+                continue;
+            }
+            state[st] = St::Accepted;
+            result[st] = first[st];
+            push_nb(st, &mut state, &tries, &mut queue, &mut nb);
         }
-        state[st] = St::Accepted;
-        result[st] = first[st];
-        push_nb(st, &mut state, &tries, &mut queue, &mut nb);
         while let Some(t) = queue.pop_front() {
             if state[t] != St::Queued {
                 continue;
@@ -1070,10 +1414,10 @@ pub fn track(
             let inside = !hypot_exceeds(pd[0], pd[1], r1 - 1e-6 - r2);
             let found = if inside {
                 buf.clear();
-                dmap.maxima_within(&maxima[maxima_at[t]..maxima_at[t + 1]], c, r2, &mut buf);
+                maps.maxima_within(&maxima[maxima_at[t]..maxima_at[t + 1]], c, r2, &mut buf);
                 nearest_strong_of(&buf, c)
             } else {
-                dmap.nearest_strong(c, r2, &mut buf)
+                maps.nearest_strong(c, r2, &mut buf)
             };
             match found {
                 Some(p) if p.v > 0.0 && p.v >= 0.3 * m => {
@@ -1124,18 +1468,15 @@ pub fn track(
                 peak_extra,
                 window_from: (full && r.centre.iter().all(|v| v.is_finite()))
                     .then_some((r.centre, r.window)),
+                measured: if anchor[k] {
+                    still[k].map(|(m, _)| (q[k], m))
+                } else {
+                    None
+                },
             }
         })
         .collect();
     let site_idx: Vec<GridIndex> = seeds.iter().map(|t| t.index).collect();
-    let tpl = Template::new(
-        sigma,
-        s,
-        reference.lattice.a,
-        reference.lattice.b,
-        cfg.lattice,
-        nonfinite,
-    );
     let stat = |c: [f64; 2]| tpl.eval(image, sign, c).map(|t| t.0);
     let noise = interstitial_noise(stat, (w, h), mask, cfg.lattice, &site_idx, |g| {
         slot.get(g.i, g.j)
@@ -1182,4 +1523,99 @@ pub fn track(
         contrast,
         stats,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn textured(w: usize, h: usize) -> Image {
+        Image::from_fn(w, h, |x, y| {
+            let (fx, fy) = (x as f64, y as f64);
+            let dots = (fx * 0.79).sin() * (fy * 0.81).cos();
+            let tex = ((x * 7919 + y * 104729) % 97) as f64 * 0.37;
+            200.0 + 0.5 * fx - 0.3 * fy + 500.0 * dots * dots + tex
+        })
+    }
+
+    fn near(a: &Peak, b: &Peak) -> bool {
+        (a.x - b.x).abs() < 1e-6
+            && (a.y - b.y).abs() < 1e-6
+            && (a.v - b.v).abs() <= 1e-5 * b.v.abs().max(1.0)
+    }
+
+    /// Inside its interior the crop's map finds the whole map's peaks (positions to 1e-6 px,
+    /// values to 1e-5: the crop's running sums start at its edge); beyond it, and without a
+    /// crop, the searches read the whole map itself.
+    #[test]
+    fn a_cropped_maps_searches_are_the_whole_maps() {
+        for (k, sigma_f, box_half) in [(1usize, 1.2, 4usize), (2, 0.9, 3)] {
+            let img = textured(230, 190);
+            let fp = FilterParams {
+                k,
+                sigma_f,
+                box_half,
+            };
+            let whole = DotMap::build(&img, 1.0, 0.0, false, &fp);
+            let around = [[120.3, 96.7], [131.0, 88.2]];
+            let maps = Maps::new(&img, 1.0, 0.0, false, &fp, Some(&around), 9.0);
+            assert!(matches!(maps.source, Source::Crop { .. }));
+            assert!(maps.whole.get().is_none());
+            let (mut a, mut b) = (Vec::new(), Vec::new());
+            for c in [[120.3, 96.7], [131.0, 88.2], [118.0, 95.5], [133.4, 90.0]] {
+                for r in [2.5, 6.0] {
+                    assert!(maps.crop_for(c, r).is_some(), "{c:?} {r}");
+                    a.clear();
+                    b.clear();
+                    maps.local_maxima_px(c, r, &mut a);
+                    whole.local_maxima_px(c, r, &mut b);
+                    assert_eq!(a.len(), b.len(), "{c:?} {r}");
+                    assert!(a.iter().zip(&b).all(|(p, q)| near(&p.peak, &q.peak)));
+                    // the list read back on a smaller disc
+                    let (mut pa, mut pb) = (Vec::new(), Vec::new());
+                    maps.maxima_within(&a, c, 0.5 * r, &mut pa);
+                    whole.maxima_within(&b, c, 0.5 * r, &mut pb);
+                    assert_eq!(pa.len(), pb.len());
+                    assert!(pa.iter().zip(&pb).all(|(p, q)| near(p, q)));
+                    let (mut ba, mut bb) = (Vec::new(), Vec::new());
+                    let (sa, sb) = (
+                        maps.nearest_strong(c, r, &mut ba),
+                        whole.nearest_strong(c, r, &mut bb),
+                    );
+                    assert_eq!(sa.is_some(), sb.is_some());
+                    if let (Some(p), Some(q)) = (sa, sb) {
+                        assert!(near(&p, &q), "{p:?} {q:?}");
+                    }
+                    let (va, vb) = (maps.sample(c), whole.sample(c));
+                    assert!((va - vb).abs() <= 1e-5 * vb.abs().max(1.0), "{va} {vb}");
+                }
+            }
+            // nothing read the whole map so far; a search beyond the interior does, exactly
+            assert!(maps.whole.get().is_none());
+            let far = [6.0, 5.0];
+            assert!(maps.crop_for(far, 3.0).is_none());
+            let (mut pa, mut pb) = (Vec::new(), Vec::new());
+            let got = maps.nearest_strong(far, 3.0, &mut pa);
+            assert_eq!(got, whole.nearest_strong(far, 3.0, &mut pb));
+            assert!(maps.whole.get().is_some());
+            // an anchor's value beyond the interior is not read: NaN
+            assert!(maps.sample(far).is_nan());
+        }
+        // nothing to search: no map; every dot searched: the whole map
+        let img = textured(64, 64);
+        let fp = FilterParams {
+            k: 1,
+            sigma_f: 1.0,
+            box_half: 3,
+        };
+        let none = Maps::new(&img, 1.0, 0.0, false, &fp, Some(&[]), 9.0);
+        assert!(matches!(none.source, Source::Nothing) && none.sample([30.0, 30.0]).is_nan());
+        let all = Maps::new(&img, 1.0, 0.0, false, &fp, None, 9.0);
+        assert!(matches!(all.source, Source::Whole));
+        let whole = DotMap::build(&img, 1.0, 0.0, false, &fp);
+        assert_eq!(all.sample([30.0, 30.0]), whole.sample([30.0, 30.0]));
+        // a crop of more than half the image: the whole map
+        let wide = Maps::new(&img, 1.0, 0.0, false, &fp, Some(&[[32.0, 32.0]]), 20.0);
+        assert!(matches!(wide.source, Source::Whole));
+    }
 }

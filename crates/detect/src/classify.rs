@@ -26,6 +26,9 @@ pub(crate) struct Site {
     /// window is then that window moved by the whole pixels of the dot's displacement from the
     /// reference centre, instead of the window centred on its own centre.
     pub window_from: Option<([f64; 2], Window)>,
+    /// When tracking a still dot: the template measure already taken at this point (the
+    /// reference centre), in place of the one at the peak.
+    pub measured: Option<([f64; 2], Measure)>,
 }
 
 /// A classified site.
@@ -823,10 +826,18 @@ pub(crate) fn classify(
         .map_init(Scratch::new, |scratch, st| {
             let (mut snr, mut val, mut pos, mut blob) =
                 (f64::NEG_INFINITY, 0.0, st.predicted, None);
-            // The test and the centroid start at the searched peak when there is one.
-            let p0 = st.peak.map_or(st.predicted, |p| p.pos());
+            // The test and the centroid start at the searched peak when there is one (or were
+            // taken at the still dot's reference centre).
+            let p0 = match st.measured {
+                Some((at, _)) => at,
+                None => st.peak.map_or(st.predicted, |p| p.pos()),
+            };
             let searched = st.peak.is_some() && dist2(p0, st.predicted) > 0.25;
-            if let Some(m) = tpl.measure(ctx.img, ctx.sign, p0, ctx.sigma, scratch) {
+            let measure = match st.measured {
+                Some((_, m)) => Some(m),
+                None => tpl.measure(ctx.img, ctx.sign, p0, ctx.sigma, scratch),
+            };
+            if let Some(m) = measure {
                 snr = m.t / noise - if searched { st.peak_extra } else { 0.0 };
                 val = m.a;
                 pos = p0;

@@ -175,6 +175,32 @@ fn larger_smooth_displacements_follow_the_neighbours() {
     assert!(worst > 0.75 * s, "{worst}");
 }
 
+/// A gradient frame's flow is local: most of the target keeps still and is taken as found
+/// from the template measure at the reference centres (without a search), the dot map is
+/// built around the moving region only, and growth starts from all the still dots at once.
+/// Here the flow moves dots by up to 1.2 spacings (0.25 spacing change between neighbours at
+/// most): the dots that moved by about one lattice vector look still too (a neighbour's dot
+/// sits at their reference centre) and must still be followed through the band between. The
+/// frame is large enough for the map's crop to be a third of it.
+#[test]
+fn a_local_flow_is_tracked_from_the_still_dots() {
+    let s = 8.0;
+    let c = case(s, 5.0, 7.0, 70);
+    let width = 64.0;
+    let amplitude = 1.2 * s * width / (-0.5f64).exp();
+    let bump = FlowConfig {
+        displacement: DisplacementField::GaussianBump {
+            centre: [380.0, 392.0],
+            amplitude,
+            width,
+        },
+        ..Default::default()
+    };
+    let (worst, err) = check_flow(&c, &bump, 768);
+    assert!(worst > 1.15 * s, "{worst}");
+    assert!(err < 0.5, "{err}");
+}
+
 #[test]
 fn no_flow_images_keep_every_dot_in_place() {
     let c = case(8.0, 6.0, 0.0, 60);
