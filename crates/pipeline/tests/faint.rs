@@ -13,7 +13,7 @@
 //! not become a dot.
 
 use bostrack_core::DotFlags;
-use bostrack_detect::{DetectConfig, detect};
+use bostrack_detect::{DetectConfig, detect, track};
 use bostrack_fit::{FitConfig, estimate_noise, fit_dots};
 use bostrack_synth::{Scene, SceneConfig};
 
@@ -30,6 +30,14 @@ struct Score {
 }
 
 fn score(amplitude: f64, missing: f64, size: usize, seed: u64) -> Score {
+    score_in(amplitude, missing, size, seed, false)
+}
+
+/// [`score`] of the reference image, or (`tracked`) of a no-flow image of the same target with
+/// its own noise, its dots tracked from the reference's detection (as a gradient frame's are:
+/// its still dots found from the template measure at the reference centres, the sites the
+/// reference found empty tested at their prediction) and fitted.
+fn score_in(amplitude: f64, missing: f64, size: usize, seed: u64, tracked: bool) -> Score {
     let mut cfg = SceneConfig {
         width: size,
         height: size,
@@ -48,9 +56,16 @@ fn score(amplitude: f64, missing: f64, size: usize, seed: u64) -> Score {
     cfg.noise.read_noise = 10.0;
     cfg.noise.gain = 1.0;
     let scene = Scene::reference(&cfg).unwrap();
-    let img = &scene.image;
+    let other;
+    let mut det = detect(&scene.image, None, &DetectConfig::default()).unwrap();
+    let img = if tracked {
+        other = bostrack_synth::stack(&cfg, 1).unwrap().remove(0);
+        det = track(&other, None, &det, &DetectConfig::default()).unwrap();
+        &other
+    } else {
+        &scene.image
+    };
     let noise = estimate_noise(img, None).unwrap();
-    let det = detect(img, None, &DetectConfig::default()).unwrap();
     let fits = fit_dots(img, None, &det.seeds, &FitConfig::default(), &noise).unwrap();
     let mut s = Score::default();
     for (seed, fit) in det.seeds.iter().zip(&fits) {
@@ -82,7 +97,7 @@ fn score(amplitude: f64, missing: f64, size: usize, seed: u64) -> Score {
             }
         }
     }
-    println!("peak {amplitude}, {missing} empty: {s:?}");
+    println!("peak {amplitude}, {missing} empty, tracked {tracked}: {s:?}");
     s
 }
 
@@ -119,6 +134,24 @@ fn peak_snr_3_5_dots_the_detector_misses_are_found_by_their_fit() {
 #[test]
 fn empty_sites_seldom_become_dots() {
     let s = score(95.0, 0.3, 512, 77);
+    assert!(s.empty > 600, "{s:?}");
+    assert!(s.spurious <= 2, "{s:?}");
+    assert_eq!(s.missed + s.failed, 0, "{s:?}");
+}
+
+/// The same rates in a tracked image (a no-flow image of the peak-SNR-3.5 target and of the
+/// target with 30 % of its dots left out): tracking's still dots are tested at their
+/// reference centre and its empty sites among them at their prediction, without a search
+/// (whose maximum over the noise had passed more faint dots: the detector now misses 276 of
+/// the 2,401 dots here, against 137 with the search), and the fits decide. Measured: 19 missed
+/// and none failed (16 and 2 with the search), no empty site made a dot.
+#[test]
+fn tracked_images_find_the_faint_dots_and_leave_the_empty_sites() {
+    let s = score_in(55.0, 0.05, 512, 5, true);
+    let n = dots(&s);
+    assert!((s.missed + s.failed) * 100 <= n, "{s:?}");
+    assert_eq!(s.spurious, 0, "{s:?}");
+    let s = score_in(95.0, 0.3, 512, 77, true);
     assert!(s.empty > 600, "{s:?}");
     assert!(s.spurious <= 2, "{s:?}");
     assert_eq!(s.missed + s.failed, 0, "{s:?}");
