@@ -1119,7 +1119,8 @@ pub fn track(
     // classification takes their measure as it is. A dot that moved by a lattice vector can
     // look still too; it lies beyond a band of moving dots, outside the largest group (as in
     // the search below, the region of small displacement is taken to be the largest one).
-    let still: Vec<Option<(Measure, [f64; 2])>> = (0..n)
+    // (each still dot's measure; its centroid is that of its blob)
+    let still: Vec<Option<Measure>> = (0..n)
         .into_par_iter()
         .with_min_len(PAR_MIN)
         .map_init(Scratch::new, |sc, k| {
@@ -1131,7 +1132,7 @@ pub fn track(
             (m.t > 0.0
                 && c.iter().all(|v| v.is_finite())
                 && dist2(c, q[k]) <= (STILL_SPACING * s).powi(2))
-            .then_some((m, c))
+            .then_some(m)
         })
         .collect();
     let anchor: Vec<bool> = {
@@ -1181,10 +1182,10 @@ pub fn track(
     // an anchor's peak: its centroid, with the map's value there where the crop holds it
     // (growth reads the values of the anchors near the searched dots only; NaN elsewhere)
     let anchor_peak = |k: usize| {
-        still[k].map(|(_, c)| Peak {
-            x: c[0],
-            y: c[1],
-            v: maps.sample(c),
+        still[k].and_then(|m| m.blob).map(|b| Peak {
+            x: b.centre[0],
+            y: b.centre[1],
+            v: maps.sample(b.centre),
         })
     };
     // The median displacement of the peaks in `found` at seed k's 3x3 index neighbours, or its
@@ -1469,7 +1470,7 @@ pub fn track(
                 window_from: (full && r.centre.iter().all(|v| v.is_finite()))
                     .then_some((r.centre, r.window)),
                 measured: if anchor[k] {
-                    still[k].map(|(m, _)| (q[k], m))
+                    still[k].map(|m| (q[k], m))
                 } else {
                     None
                 },

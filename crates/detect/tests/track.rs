@@ -105,6 +105,19 @@ fn case(spacing: f64, diameter: f64, angle: f64, seed: u64) -> Case {
     }
 }
 
+/// A Gaussian bump of displacement around `centre` whose largest move, `largest` px, is at
+/// `width` px from it.
+fn bump(centre: [f64; 2], largest: f64, width: f64) -> FlowConfig {
+    FlowConfig {
+        displacement: DisplacementField::GaussianBump {
+            centre,
+            amplitude: largest * width / (-0.5f64).exp(),
+            width,
+        },
+        ..Default::default()
+    }
+}
+
 fn uniform(dx: f64, dy: f64) -> FlowConfig {
     FlowConfig {
         displacement: DisplacementField::Uniform { dx, dy },
@@ -137,17 +150,7 @@ fn larger_smooth_displacements_follow_the_neighbours() {
     let c = case(s, 5.0, 12.0, 50);
     // A BOS-like bump: |d| up to 0.8 spacing at 50 px from its centre (0.21 spacing change
     // between neighbours at most, at the centre).
-    let width = 50.0;
-    let amplitude = 0.8 * s * width / (-0.5f64).exp();
-    let bump = FlowConfig {
-        displacement: DisplacementField::GaussianBump {
-            centre: [128.0, 124.0],
-            amplitude,
-            width,
-        },
-        ..Default::default()
-    };
-    let (worst, _) = check_flow(&c, &bump, 256);
+    let (worst, _) = check_flow(&c, &bump([128.0, 124.0], 0.8 * s, 50.0), 256);
     assert!(worst > 0.75 * s, "{worst}");
     // A vortex turning by up to 0.7 spacing (0.23 spacing change between neighbours in its
     // core), on a larger frame so that most of it moves little.
@@ -186,17 +189,7 @@ fn larger_smooth_displacements_follow_the_neighbours() {
 fn a_local_flow_is_tracked_from_the_still_dots() {
     let s = 8.0;
     let c = case(s, 5.0, 7.0, 70);
-    let width = 64.0;
-    let amplitude = 1.2 * s * width / (-0.5f64).exp();
-    let bump = FlowConfig {
-        displacement: DisplacementField::GaussianBump {
-            centre: [380.0, 392.0],
-            amplitude,
-            width,
-        },
-        ..Default::default()
-    };
-    let (worst, err) = check_flow(&c, &bump, 768);
+    let (worst, err) = check_flow(&c, &bump([380.0, 392.0], 1.2 * s, 64.0), 768);
     assert!(worst > 1.15 * s, "{worst}");
     assert!(err < 0.5, "{err}");
 }
