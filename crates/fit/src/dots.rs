@@ -2563,9 +2563,12 @@ fn for_each_neighbour(
     count
 }
 
-/// Rows per band of a [`Canvas`] (bands are rendered in parallel, each in dot order, so the
-/// canvas does not depend on the number of threads).
+/// Least rows per band of a [`Canvas`] (bands are rendered in parallel, each in dot order, so
+/// the canvas does not depend on the number of threads).
 const BAND: usize = 32;
+
+/// A rendering's buffers: the box's values and [`crate::eval::exp_grid`]'s two rows.
+type RenderBufs = (Vec<f64>, Vec<f64>, Vec<f64>);
 
 /// Every neighbour model of a pass rendered once over its 5σ box into an image-sized canvas.
 /// A window then has its neighbours subtracted by reading the canvas and adding back its own
@@ -2613,46 +2616,63 @@ impl Canvas {
         if width == 0 || height == 0 {
             return Canvas { values, boxes };
         }
-        let mut bands: Vec<Vec<u32>> = vec![Vec::new(); height.div_ceil(BAND)];
+        if !zeroed {
+            values
+                .par_chunks_mut(BAND * width)
+                .for_each(|chunk| chunk.fill(0.0));
+        }
+        // each model rendered once, whole, by the band its box starts in; a band's models also
+        // reach into the next band (as many rows as the tallest box), so the even bands are
+        // drawn first, each with the band below it, then the odd ones (a box that straddled
+        // two bands was rendered twice, once per part: ~40 % more renderings on the real
+        // sample)
+        let band = boxes
+            .iter()
+            .flatten()
+            .map(|b| b.y_hi - b.y_lo + 1)
+            .max()
+            .unwrap_or(1)
+            .max(BAND);
+        let mut bands: Vec<Vec<u32>> = vec![Vec::new(); height.div_ceil(band)];
         for (j, b) in boxes.iter().enumerate() {
             if let Some(b) = b {
-                for band in &mut bands[b.y_lo / BAND..=b.y_hi / BAND] {
-                    band.push(j as u32);
-                }
+                bands[b.y_lo / band].push(j as u32);
             }
         }
+        let draw = |rows: &mut [f64], r0: usize, list: &[u32], bufs: &mut RenderBufs| {
+            let (out, v, q) = bufs;
+            for &j in list {
+                let (Some(m), Some(b)) = (&models[j as usize], boxes[j as usize]) else {
+                    continue;
+                };
+                let (bw, bh) = m.render(b, out, v, q);
+                let amp = m.theta[IA];
+                for (jj, e) in out[..bw * bh].chunks_exact(bw).enumerate() {
+                    let at = (b.y_lo - r0 + jj) * width + b.x_lo;
+                    for (c, e) in rows[at..at + bw].iter_mut().zip(e) {
+                        *c += amp * e;
+                    }
+                }
+            }
+        };
+        let pair = 2 * band * width;
+        // the even bands (each with the one below it), then the odd ones
         values
-            .par_chunks_mut(BAND * width)
-            .zip(bands.par_iter())
+            .par_chunks_mut(pair)
+            .zip(bands.par_iter().step_by(2))
             .enumerate()
-            .for_each_init(
-                || (Vec::new(), Vec::new(), Vec::new()),
-                |(out, v, q), (band, (chunk, list))| {
-                    if !zeroed {
-                        chunk.fill(0.0);
-                    }
-                    let r0 = band * BAND;
-                    let r1 = r0 + chunk.len() / width - 1;
-                    for &j in list {
-                        let (Some(m), Some(b)) = (&models[j as usize], boxes[j as usize]) else {
-                            continue;
-                        };
-                        let part = PixelBox {
-                            y_lo: b.y_lo.max(r0),
-                            y_hi: b.y_hi.min(r1),
-                            ..b
-                        };
-                        let (bw, bh) = m.render(part, out, v, q);
-                        let amp = m.theta[IA];
-                        for (jj, e) in out[..bw * bh].chunks_exact(bw).enumerate() {
-                            let at = (part.y_lo - r0 + jj) * width + part.x_lo;
-                            for (c, e) in chunk[at..at + bw].iter_mut().zip(e) {
-                                *c += amp * e;
-                            }
-                        }
-                    }
-                },
-            );
+            .for_each_init(RenderBufs::default, |bufs, (k, (rows, list))| {
+                draw(rows, 2 * k * band, list, bufs)
+            });
+        if bands.len() > 1 {
+            values[band * width..]
+                .par_chunks_mut(pair)
+                .zip(bands[1..].par_iter().step_by(2))
+                .enumerate()
+                .for_each_init(RenderBufs::default, |bufs, (k, (rows, list))| {
+                    draw(rows, (2 * k + 1) * band, list, bufs)
+                });
+        }
         Canvas { values, boxes }
     }
 
@@ -3552,6 +3572,71 @@ mod tests {
             sigma_y: sy,
             rho,
             background: 90.0,
+        }
+    }
+
+    /// The canvas is the sum of every model rendered over its own pixel box: dots of several
+    /// sizes (boxes from 5 to 61 rows, taller than a band), some at the image's edges, on an
+    /// image whose height is no multiple of a band, drawn into a new buffer and into a used one,
+    /// on one thread and on three.
+    #[test]
+    fn a_canvas_is_the_sum_of_its_models() {
+        use super::{Canvas, FitSampling, NeighbourModel};
+        use bostrack_core::Gaussian2D;
+        let (w, h) = (90usize, 157usize);
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let models: Vec<Option<NeighbourModel>> = (0..120)
+            .map(|k| {
+                if k % 17 == 5 {
+                    return None;
+                }
+                let sigma = [0.4, 1.3, 2.2, 6.0][k % 4];
+                let g = Gaussian2D {
+                    x0: -3.0 + (w as f64 + 6.0) * next(),
+                    y0: -3.0 + (h as f64 + 6.0) * next(),
+                    amplitude: 100.0 + 900.0 * next(),
+                    sigma_x: sigma * (0.8 + 0.4 * next()),
+                    sigma_y: sigma * (0.8 + 0.4 * next()),
+                    rho: 0.6 * (next() - 0.5),
+                    background: 50.0,
+                };
+                NeighbourModel::new(&converged(g), FitSampling::Auto)
+            })
+            .collect();
+        let mut want = vec![0.0f64; w * h];
+        let (mut out, mut v, mut q) = (Vec::new(), Vec::new(), Vec::new());
+        let mut tallest = 0;
+        for m in models.iter().flatten() {
+            let Some(b) = m.pixel_box(w, h) else { continue };
+            tallest = tallest.max(b.y_hi - b.y_lo + 1);
+            let (bw, bh) = m.render(b, &mut out, &mut v, &mut q);
+            for jj in 0..bh {
+                for ii in 0..bw {
+                    want[(b.y_lo + jj) * w + b.x_lo + ii] +=
+                        m.theta[crate::eval::IA] * out[jj * bw + ii];
+                }
+            }
+        }
+        assert!(tallest > super::BAND, "{tallest}");
+        let scale = want.iter().fold(0.0f64, |a, &b| a.max(b.abs()));
+        for threads in [1, 3] {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            for used in [Vec::new(), vec![7.5; 3 * w * h]] {
+                let c = pool.install(|| Canvas::render(&models, w, h, used));
+                assert_eq!(c.values.len(), w * h);
+                for (k, (a, b)) in c.values.iter().zip(&want).enumerate() {
+                    assert!((a - b).abs() <= 1e-12 * scale, "{threads} {k}: {a} {b}");
+                }
+            }
         }
     }
 
