@@ -28,8 +28,8 @@
 //! pixel mean `φ̄` (closed-form erf moments when ρ is fixed at 0, Gauss-Legendre nodes otherwise)
 //! and `G` is accumulated directly.
 //!
-//! `E` over a window needs only 8 calls of `exp` ([`exp_grid`]): along a row the exponent is
-//! quadratic in the column, so `E(i+1) = E(i)·r(i)` with `r(i+1) = r(i)·e^{-a}`; the row-to-row
+//! `E` over a window needs only 8 values of `exp` ([`exp_grid`], computed together:
+//! `simd::exp8`): along a row the exponent is quadratic in the column, so `E(i+1) = E(i)·r(i)` with `r(i+1) = r(i)·e^{-a}`; the row-to-row
 //! step multiplies every column by `e^{-bX_i}` (a vector product, no serial dependence).
 
 use crate::simd;
@@ -275,8 +275,8 @@ impl Kind {
 }
 
 /// Fills `out[j*w + i] = exp(-(a X² + 2b XY + c Y²)/2)` with `X = x_first + i`,
-/// `Y = y_first + j`, for a `w × h` grid, using 8 calls of `exp` and two multiplications per
-/// point (see the module doc). Falls back to one `exp` per point when an intermediate factor
+/// `Y = y_first + j`, for a `w × h` grid, using 8 values of `exp` (at once: [`simd::exp8`]) and
+/// two multiplications per point (see the module doc). Falls back to one `exp` per point when an intermediate factor
 /// could leave the normal floating-point range (very narrow dots in wide windows).
 pub(crate) fn exp_grid(
     a: f64,
@@ -305,28 +305,35 @@ pub(crate) fn exp_grid(
         return;
     }
     let (v, q) = (&mut v[..w], &mut q[..w]);
+    // the eight factors at once (`simd::exp8`)
+    let arch = simd::arch();
+    let [ea, mut vi, mut r, eb, mut qi, ec, gy, s] = simd::exp8(
+        arch,
+        [
+            -a,
+            -(0.5 * a * x_first * x_first + b * x_first * y_first),
+            -(0.5 * a * (2.0 * x_first + 1.0) + b * y_first),
+            -b,
+            -b * x_first,
+            -c,
+            -0.5 * c * y_first * y_first,
+            -0.5 * c * (2.0 * y_first + 1.0),
+        ],
+    );
     // first row without its y-only factor: exp(-(a X²/2 + b X Y0))
-    let ea = (-a).exp();
-    let mut vi = (-(0.5 * a * x_first * x_first + b * x_first * y_first)).exp();
-    let mut r = (-(0.5 * a * (2.0 * x_first + 1.0) + b * y_first)).exp();
     for slot in v.iter_mut() {
         *slot = vi;
         vi *= r;
         r *= ea;
     }
     // row-to-row factor exp(-b X)
-    let eb = (-b).exp();
-    let mut qi = (-b * x_first).exp();
     for slot in q.iter_mut() {
         *slot = qi;
         qi *= eb;
     }
-    // y-only factor exp(-c Y²/2)
-    let ec = (-c).exp();
-    let gy = (-0.5 * c * y_first * y_first).exp();
-    let s = (-0.5 * c * (2.0 * y_first + 1.0)).exp();
+    // y-only factor exp(-c Y²/2): ec, gy, s
     simd::exp_rows(
-        simd::arch(),
+        arch,
         simd::ExpRows {
             out,
             v,
@@ -1396,7 +1403,7 @@ pub(crate) fn newton_matrix(
 /// Fills `ws.tmp` with the unit-amplitude factor `E` of the dot θ over the workspace window,
 /// for subtracting a neighbour: point-sampled, or for the integrated model the box average by
 /// its Taylor series to 4th order (`E·[1 + (Eₓₓ+E_yy)/24E + (Eₓₓₓₓ+E_yyyy)/1920E + Eₓₓ_yy/576E]`
-/// with the Hermite forms of the Gaussian's derivatives): 8 calls of `exp` instead of a
+/// with the Hermite forms of the Gaussian's derivatives): 8 values of `exp` instead of a
 /// quadrature, error below 2e-4 of the amplitude for σ ≥ 1 px, 2e-5 in the tails 8 px out (test
 /// `neighbour_rendering_is_accurate`). Leaves data/keep alone.
 pub(crate) fn dot_factor(ws: &mut Workspace, theta: &Theta, sampling: Sampling) {

@@ -66,7 +66,7 @@ impl JointDot {
     }
 
     /// The dot's exponential factor `E` over the pixels of `win` (row-major; `v`, `q`: scratch of
-    /// at least the window's larger side), by the recurrence of [`exp_grid`]: 8 calls of `exp`
+    /// at least the window's larger side), by the recurrence of [`exp_grid`]: 8 values of `exp`
     /// per window instead of one per pixel (the values agree with the direct `exp` to ~1e-13).
     fn exp_over(&self, win: Window, out: &mut [f64], v: &mut [f64], q: &mut [f64]) {
         let s = &self.shape;

@@ -20,7 +20,7 @@
 //!   one fused pass per trial point (the trial's cost, and its normal matrix for the next step).
 //!   Every derivative is a combination of `E·{1, X, Y, X², XY, Y²}`, so for the point-sampled
 //!   model the normal matrix is assembled from moments `Σ E^k X^m Y^n` accumulated as row sums
-//!   (14 multiply-adds per pixel), and `E` over the window costs 8 calls of `exp` (multiplicative
+//!   (14 multiply-adds per pixel), and `E` over the window costs 8 values of `exp` (multiplicative
 //!   recurrences along rows and from row to row). Fixed-size arrays, no allocation per dot.
 //! - **Weights**: `1 / variance(model)` of the [`NoiseModel`](bostrack_core::NoiseModel), so the
 //!   final normal matrix is the Fisher matrix and its inverse gives the bound for free.
