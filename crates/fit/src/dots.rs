@@ -1212,6 +1212,11 @@ impl<'a> Iteration<'a> {
         // the fits (`hood`: their neighbour models, updated for the dots each pass refits)
         let mut fits: Vec<DotFit> = items.iter().map(|i| i.fit).collect();
         let mut near = Vec::new();
+        // each seed's colour on the lattice's checkerboard ([`is_red`]), read every pass
+        let red: Vec<bool> = self.seeds.iter().map(is_red).collect();
+        // the records whose `moved` may be non-zero (all, until a pass's update below): the
+        // passes then touch only those and the refitted records, not every record
+        let mut movers: Vec<usize> = (0..items.len()).collect();
         let mut links = match self.links_from {
             Some(m) if m.fits(self.seeds) => Links::carried(m, self.seeds, &hood, &mut near),
             _ => Links::new(self.seeds, &hood),
@@ -1219,7 +1224,7 @@ impl<'a> Iteration<'a> {
         // (only where the passes would refit much of the image: on a target whose dots barely
         // overlap they have little to do, and the map's set-up would cost more than it saves)
         let hybrid = hybrid.filter(|_| {
-            let pulls = self.neighbour_pull(&items, &links, None, None);
+            let pulls = self.neighbour_pull(&items, &links, None, None, &movers);
             let owing = pulls.iter().filter(|&&p| p > tol).count();
             owing as f64 >= CANVAS_FRACTION * self.seeds.len() as f64
         });
@@ -1235,11 +1240,12 @@ impl<'a> Iteration<'a> {
             // (the map answers for the linear dots: their pulls are not computed, 0)
             let skip = hybrid.as_ref().map(|h| h.state.live.as_slice());
             let now = match halves.take() {
-                None => self.neighbour_pull(&items, &links, None, skip),
+                None => self.neighbour_pull(&items, &links, None, skip, &movers),
                 Some(first) => {
                     let second: Vec<bool> = first.iter().map(|f| !f).collect();
-                    let of_first = self.neighbour_pull(&items, &links, Some(&first), skip);
-                    let of_second = self.neighbour_pull(&items, &links, Some(&second), skip);
+                    let of_first = self.neighbour_pull(&items, &links, Some(&first), skip, &movers);
+                    let of_second =
+                        self.neighbour_pull(&items, &links, Some(&second), skip, &movers);
                     of_first
                         .iter()
                         .zip(&of_second)
@@ -1273,8 +1279,8 @@ impl<'a> Iteration<'a> {
                 // the other colour where this one has nothing left to do
                 let mine: Vec<bool> = select
                     .iter()
-                    .zip(self.seeds)
-                    .map(|(&x, s)| x && is_red(s) == passes.is_multiple_of(2))
+                    .zip(&red)
+                    .map(|(&x, &r)| x && r == passes.is_multiple_of(2))
                     .collect();
                 let n_mine = mine.iter().filter(|&&s| s).count();
                 if n_mine > 0 {
@@ -1299,6 +1305,9 @@ impl<'a> Iteration<'a> {
                     let moved = self.take_linear(
                         h, &mut items, &mut fits, &mut hood, &mut links, &mut near, false,
                     );
+                    movers = (0..items.len())
+                        .filter(|&i| items[i].moved != 0.0)
+                        .collect();
                     if moved > tol {
                         continue;
                     }
@@ -1363,38 +1372,33 @@ impl<'a> Iteration<'a> {
                     }
                 }
             }
-            // each record on its own, in parallel (the counts summed)
-            let (steps, refitted) = items
-                .par_iter_mut()
-                .zip(next)
-                .zip(strikes.par_iter_mut())
-                .zip(last_move.par_iter_mut())
-                .zip(owed.par_iter_mut())
-                .zip(select.par_iter())
-                .with_min_len(256)
-                .map(|(((((it, n), k), last), o), &sel)| {
-                    if sel {
-                        *o = 0.0;
-                    }
-                    match n {
-                        Some(n) => {
-                            // (from pass 4 on: passes 1-3 start from the moments and loose
-                            // fits)
-                            if passes >= 3 && n.moved > tol && n.moved >= *last {
-                                *k += 1;
-                            }
-                            *last = n.moved;
-                            *it = *n;
-                            (usize::from(it.stepped), 1)
-                        }
-                        // not selected, or predicted to move by less than the tolerance
-                        None => {
-                            it.moved = 0.0;
-                            (0, 0)
-                        }
-                    }
-                })
-                .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
+            // the records of this pass: the selected ones owe nothing now; a refitted one takes
+            // its new record (a move no smaller than its last, from pass 4 on, is a strike);
+            // the others did not move (only the last movers can hold a move to clear)
+            // (passes 1-3 start from the moments and loose fits)
+            for (i, &sel) in select.iter().enumerate() {
+                if sel {
+                    owed[i] = 0.0;
+                }
+            }
+            for &i in &movers {
+                if next[i].is_none() {
+                    items[i].moved = 0.0;
+                }
+            }
+            movers.clear();
+            let (mut steps, mut refitted) = (0, 0);
+            for (i, n) in next.into_iter().enumerate() {
+                let Some(n) = n else { continue };
+                if passes >= 3 && n.moved > tol && n.moved >= last_move[i] {
+                    strikes[i] += 1;
+                }
+                last_move[i] = n.moved;
+                items[i] = *n;
+                steps += usize::from(items[i].stepped);
+                refitted += 1;
+                movers.push(i);
+            }
             linear_steps += steps;
             refits.push(refitted);
         }
@@ -1614,35 +1618,39 @@ impl<'a> Iteration<'a> {
         links: &Links,
         only: Option<&[bool]>,
         skip: Option<&[bool]>,
+        movers: &[usize],
     ) -> Vec<f64> {
         // each dot's move where it counts, 0 where it does not: a compact copy, since the rows
-        // read it at random (from the ~0.2 kB records, a cache miss per link)
-        let moves: Vec<f64> = items
-            .iter()
-            .enumerate()
-            .map(|(j, it)| {
-                if only.is_none_or(|o| o[j]) {
-                    it.moved
-                } else {
-                    0.0
-                }
-            })
-            .collect();
+        // read it at random (from the ~0.2 kB records, a cache miss per link), made from the
+        // records that may have moved (`movers`: every other record's move is 0)
+        let mut moves = vec![0.0f64; items.len()];
+        for &j in movers {
+            if only.is_none_or(|o| o[j]) {
+                moves[j] = items[j].moved;
+            }
+        }
         let moving = |j: usize| moves.get(j).is_some_and(|&m| m != 0.0);
         self.seeds
             .par_iter()
             .enumerate()
             .with_min_len(256)
             .map(|(i, s)| {
-                if skip.is_some_and(|k| k[i]) || absent(s, &items[i].fit) {
+                if skip.is_some_and(|k| k[i]) {
                     return 0.0;
                 }
-                links
+                let pull: f64 = links
                     .row(i)
                     .iter()
                     .filter(|&&(j, _)| moving(j as usize))
                     .map(|&(j, share)| pull_of(moves[j as usize], share))
-                    .sum()
+                    .sum();
+                // (a site without a dot is pulled by nothing; its record is read only where
+                // something pulls)
+                if pull != 0.0 && absent(s, &items[i].fit) {
+                    0.0
+                } else {
+                    pull
+                }
             })
             .collect()
     }
@@ -1702,140 +1710,151 @@ impl<'a> Iteration<'a> {
             hood.find_twins();
         }
         let fkind = crate::eval::Kind::from_model(cfg.model);
-        let items = seeds
-            .par_iter()
-            .enumerate()
-            .map_init(
-                || {
-                    let mut f = Fitter::new(cfg);
-                    f.intermediate = kind.intermediate;
-                    f.warm = kind.warm;
-                    f.fixed_shape = self.fixed_shape;
-                    (f, Vec::new())
-                },
-                |(f, near), (i, s)| {
-                    // a site the detector found no dot at is looked for once, in the first full
-                    // pass that knows the image's dot shape (see `Fitter::fit_loaded_present`);
-                    // where a dot is found it is fitted as every other from then on
-                    let empty = absent(s, &prev[i]);
-                    let look_for = empty
-                        && self.fixed_shape.is_some()
-                        && !kind.intermediate
-                        && check.is_none();
-                    if (empty && !look_for) || select.is_some_and(|sel| !sel[i]) {
-                        return None;
+        let init = || {
+            let mut f = Fitter::new(cfg);
+            f.intermediate = kind.intermediate;
+            f.warm = kind.warm;
+            f.fixed_shape = self.fixed_shape;
+            (f, Vec::new())
+        };
+        let refit = |(f, near): &mut (Fitter, Vec<usize>), i: usize, s: &Seed| -> Option<Item> {
+            // a site the detector found no dot at is looked for once, in the first full
+            // pass that knows the image's dot shape (see `Fitter::fit_loaded_present`);
+            // where a dot is found it is fitted as every other from then on
+            let empty = absent(s, &prev[i]);
+            let look_for =
+                empty && self.fixed_shape.is_some() && !kind.intermediate && check.is_none();
+            if (empty && !look_for) || select.is_some_and(|sel| !sel[i]) {
+                return None;
+            }
+            // (with a canvas: the window loaded less the canvas in one pass, the dot's
+            // own model and its twins added back below)
+            let flags = f.load_image_less(
+                img,
+                mask,
+                s.window,
+                canvas.as_ref().map(|c| c.values.as_slice()),
+            );
+            let own = &prev[i];
+            let win = Window::new(f.ws.wx, f.ws.wy, f.ws.w, f.ws.h);
+            // (the tails were rendered without the ghosts)
+            let tails = tails.filter(|_| !hood.ghost_reaches(win, near));
+            // a later pass: the look at the dot's last fit (left as it is below the
+            // tolerance); a first pass from prior fits (a stack image, a gradient
+            // frame): one Gauss-Newton step from the prior with its Fisher matrix (the
+            // fit with the neighbours held, to second order)
+            let from = match check.map(|c| &c[i]) {
+                Some(item) => self.kept(item.looked.as_ref()).map(|l| {
+                    (
+                        item.fit,
+                        l,
+                        Some(cfg.neighbour_tolerance),
+                        item.looked.clone(),
+                    )
+                }),
+                None => steps
+                    .and_then(|l| l[i].as_ref())
+                    .filter(|_| !look_for)
+                    .map(|l| {
+                        let mut from = *own;
+                        from.index = s.index;
+                        from.flags = flags | s.flags;
+                        // (the memory's matrix, not a copy of it)
+                        let keep = kind.looked_at.then_some(Kept::Prior(i as u32));
+                        (from, l, None, keep)
+                    }),
+            };
+            // the parameters a look evaluates the dot at; with a canvas, where they are
+            // those of the dot's own model there, the look adds that model back to the
+            // window from its own rendering (the same dot: one rendering, not two)
+            let look_at = from.as_ref().and_then(|(from, looked, ..)| {
+                look_theta(&f.ws, from, looked, cfg.sampling, hood.models[i].as_ref())
+            });
+            let own_back = look_at.and(canvas.as_ref()).and_then(|c| {
+                let m = hood.models[i].as_ref()?;
+                (Some(m.theta) == look_at && m.sampling == Sampling::Point)
+                    .then_some(c.boxes[i])
+                    .flatten()
+            });
+            match (tails.and_then(|t| t.for_window(i, win)), &canvas) {
+                (Some((sum, _)), _) => {
+                    let ws = &mut f.ws;
+                    for (k, v) in sum.iter().enumerate() {
+                        ws.data[k] -= ws.keep[k] * v;
                     }
-                    // (with a canvas: the window loaded less the canvas in one pass, the dot's
-                    // own model and its twins added back below)
-                    let flags = f.load_image_less(
-                        img,
-                        mask,
-                        s.window,
-                        canvas.as_ref().map(|c| c.values.as_slice()),
-                    );
-                    let own = &prev[i];
-                    let win = Window::new(f.ws.wx, f.ws.wy, f.ws.w, f.ws.h);
-                    // (the tails were rendered without the ghosts)
-                    let tails = tails.filter(|_| !hood.ghost_reaches(win, near));
-                    // a later pass: the look at the dot's last fit (left as it is below the
-                    // tolerance); a first pass from prior fits (a stack image, a gradient
-                    // frame): one Gauss-Newton step from the prior with its Fisher matrix (the
-                    // fit with the neighbours held, to second order)
-                    let from = match check.map(|c| &c[i]) {
-                        Some(item) => self.kept(item.looked.as_ref()).map(|l| {
-                            (
-                                item.fit,
-                                l,
-                                Some(cfg.neighbour_tolerance),
-                                item.looked.clone(),
-                            )
-                        }),
-                        None => steps
-                            .and_then(|l| l[i].as_ref())
-                            .filter(|_| !look_for)
-                            .map(|l| {
-                                let mut from = *own;
-                                from.index = s.index;
-                                from.flags = flags | s.flags;
-                                // (the memory's matrix, not a copy of it)
-                                let keep = kind.looked_at.then_some(Kept::Prior(i as u32));
-                                (from, l, None, keep)
-                            }),
-                    };
-                    // the parameters a look evaluates the dot at; with a canvas, where they are
-                    // those of the dot's own model there, the look adds that model back to the
-                    // window from its own rendering (the same dot: one rendering, not two)
-                    let look_at = from.as_ref().and_then(|(from, looked, ..)| {
-                        look_theta(&f.ws, from, looked, cfg.sampling, hood.models[i].as_ref())
+                }
+                (None, Some(canvas)) => {
+                    canvas.add_back_own(&mut f.ws, i, hood, own_back.is_none());
+                }
+                (None, None) if apart => {}
+                (None, None) => {
+                    for_each_neighbour(&mut f.ws, i, hood, near, |ws, amp| {
+                        let n = ws.len();
+                        for k in 0..n {
+                            ws.data[k] -= ws.keep[k] * amp * ws.tmp[k];
+                        }
                     });
-                    let own_back = look_at.and(canvas.as_ref()).and_then(|c| {
-                        let m = hood.models[i].as_ref()?;
-                        (Some(m.theta) == look_at && m.sampling == Sampling::Point)
-                            .then_some(c.boxes[i])
-                            .flatten()
-                    });
-                    match (tails.and_then(|t| t.for_window(i, win)), &canvas) {
-                        (Some((sum, _)), _) => {
-                            let ws = &mut f.ws;
-                            for (k, v) in sum.iter().enumerate() {
-                                ws.data[k] -= ws.keep[k] * v;
-                            }
-                        }
-                        (None, Some(canvas)) => {
-                            canvas.add_back_own(&mut f.ws, i, hood, own_back.is_none());
-                        }
-                        (None, None) if apart => {}
-                        (None, None) => {
-                            for_each_neighbour(&mut f.ws, i, hood, near, |ws, amp| {
-                                let n = ws.len();
-                                for k in 0..n {
-                                    ws.data[k] -= ws.keep[k] * amp * ws.tmp[k];
-                                }
-                            });
-                        }
-                    }
-                    if let Some((from, looked, still, keep)) = from {
-                        let l = look_at
-                            .and_then(|tb| look(&mut f.ws, tb, looked, fkind, noise, own_back));
-                        if l.as_ref().zip(still).is_some_and(|(l, t)| l.moves <= t) {
-                            return None;
-                        }
-                        if let Some(l) = l.filter(|l| l.moves <= LINEAR_STEP_MAX)
-                            && let Some(stepped) =
-                                linear_step(&f.ws, &from, looked, keep, &l, fkind, cfg.sampling)
-                        {
-                            return Some(stepped);
-                        }
-                    }
-                    let (start, hint) = if own.status.is_ok() {
-                        ([own.params.x0, own.params.y0], Some(own.params))
-                    } else {
-                        (s.centre, None)
-                    };
-                    let mut fit = if look_for {
-                        f.fit_loaded_present(flags, s.centre, noise)?
-                    } else {
-                        // (a full fit that failed in the pass before, when no median shape
-                        // was known to hold: the shape held first)
-                        let held_first = matches!(
-                            own.status,
-                            FitStatus::Singular | FitStatus::LeftWindow | FitStatus::NonFinite
-                        );
-                        f.fit_loaded(flags, start, hint.as_ref(), noise, held_first)
-                    };
-                    fit.index = s.index;
-                    fit.flags |= s.flags;
-                    if fit.status.is_ok() {
-                        // (found by its fit at a site the detector called empty)
-                        fit.flags.remove(DotFlags::MISSING);
-                    }
-                    Some(Item::from_fitter(fit, f, kind.looked_at))
-                },
-            )
-            // (boxed: a pass's records of the dots it did not refit, most of them in the later
-            // passes, are then a null pointer each instead of a whole record to move)
-            .map(|it| it.map(Box::new))
-            .collect();
+                }
+            }
+            if let Some((from, looked, still, keep)) = from {
+                let l = look_at.and_then(|tb| look(&mut f.ws, tb, looked, fkind, noise, own_back));
+                if l.as_ref().zip(still).is_some_and(|(l, t)| l.moves <= t) {
+                    return None;
+                }
+                if let Some(l) = l.filter(|l| l.moves <= LINEAR_STEP_MAX)
+                    && let Some(stepped) =
+                        linear_step(&f.ws, &from, looked, keep, &l, fkind, cfg.sampling)
+                {
+                    return Some(stepped);
+                }
+            }
+            let (start, hint) = if own.status.is_ok() {
+                ([own.params.x0, own.params.y0], Some(own.params))
+            } else {
+                (s.centre, None)
+            };
+            let mut fit = if look_for {
+                f.fit_loaded_present(flags, s.centre, noise)?
+            } else {
+                // (a full fit that failed in the pass before, when no median shape
+                // was known to hold: the shape held first)
+                let held_first = matches!(
+                    own.status,
+                    FitStatus::Singular | FitStatus::LeftWindow | FitStatus::NonFinite
+                );
+                f.fit_loaded(flags, start, hint.as_ref(), noise, held_first)
+            };
+            fit.index = s.index;
+            fit.flags |= s.flags;
+            if fit.status.is_ok() {
+                // (found by its fit at a site the detector called empty)
+                fit.flags.remove(DotFlags::MISSING);
+            }
+            Some(Item::from_fitter(fit, f, kind.looked_at))
+        };
+        // (boxed: a pass's records of the dots it did not refit, most of them in the later
+        // passes, are then a null pointer each instead of a whole record to move)
+        let items: Vec<Option<Box<Item>>> = match select {
+            // a later pass: only the selected dots (their records placed by index)
+            Some(sel) => {
+                let chosen: Vec<usize> = (0..seeds.len()).filter(|&i| sel[i]).collect();
+                let done: Vec<Option<Box<Item>>> = chosen
+                    .par_iter()
+                    .map_init(init, |st, &i| refit(st, i, &seeds[i]).map(Box::new))
+                    .collect();
+                let mut all: Vec<Option<Box<Item>>> = Vec::new();
+                all.resize_with(seeds.len(), || None);
+                for (&i, it) in chosen.iter().zip(done) {
+                    all[i] = it;
+                }
+                all
+            }
+            None => seeds
+                .par_iter()
+                .enumerate()
+                .map_init(init, |st, (i, s)| refit(st, i, s).map(Box::new))
+                .collect(),
+        };
         if let Some(c) = canvas {
             *canvas_buf = c.values;
         }

@@ -4,7 +4,12 @@ use std::time::Instant;
 
 /// Median of the finite values ([`bostrack_core::median`]); `None` when there is none.
 pub(crate) fn median(values: impl IntoIterator<Item = f64>) -> Option<f64> {
-    let m = bostrack_core::median(&mut collected(values));
+    median_of(&mut collected(values))
+}
+
+/// [`median`] of the values of `v` (reordered).
+pub(crate) fn median_of(v: &mut [f64]) -> Option<f64> {
+    let m = bostrack_core::median(v);
     (!m.is_nan()).then_some(m)
 }
 
@@ -20,8 +25,13 @@ fn collected(values: impl IntoIterator<Item = f64>) -> Vec<f64> {
 
 /// Percentile `p` ∈ [0, 100] of the finite values, linear interpolation between order
 /// statistics (position `p/100 · (n - 1)`); `None` when there is none.
+#[cfg(test)]
 pub(crate) fn percentile(values: impl IntoIterator<Item = f64>, p: f64) -> Option<f64> {
-    let mut v = collected(values);
+    percentile_of(&mut collected(values), p)
+}
+
+/// [`percentile`] of the values of `v` (its non-finite values dropped, the rest reordered).
+pub(crate) fn percentile_of(v: &mut Vec<f64>, p: f64) -> Option<f64> {
     v.retain(|x| x.is_finite());
     if v.is_empty() {
         return None;
