@@ -21,9 +21,7 @@
 //! stack): positions within a median 0.025, p99 0.12 of the bound (the pixel iteration at the
 //! default tolerance: 0.015, 0.13).
 
-use crate::eval::{
-    Kind, Theta, gaussian_from_theta, pixel_blur, pixel_unblur, theta_from_gaussian,
-};
+use crate::eval::{Kind, Theta, gaussian_from_theta, pixel_unblur, theta_from_gaussian};
 use crate::joint::NB;
 use bostrack_core::{DotFit, Gaussian2D, Window};
 use bostrack_model::Sampling;
@@ -647,8 +645,11 @@ pub(crate) struct FrameState {
 
 /// The map's parameters of a fit: its point-model θ, pixel-blurred unless `blurred` is false.
 pub(crate) fn rep(g: &Gaussian2D, blurred: bool) -> Theta {
-    let t = theta_from_gaussian(g);
-    if blurred { pixel_blur(&t) } else { t }
+    if blurred {
+        crate::eval::blurred_of(g).1
+    } else {
+        theta_from_gaussian(g)
+    }
 }
 
 /// The median of each coordinate of `values` (their finite values); `None` where one has none.

@@ -753,15 +753,11 @@ fn look_theta(
     {
         return Some(m.theta);
     }
-    let th = theta_from_gaussian(&fit.params);
     if sampling != FitSampling::Auto {
-        return Some(th);
+        return Some(theta_from_gaussian(&fit.params));
     }
-    let (cs, sx, sy, r) = crate::eval::blur_parts(&th);
-    if cs < AUTO_SIGMA {
-        return None;
-    }
-    Some(crate::eval::blur_with(&th, sx, sy, r))
+    let (cs, b) = crate::eval::blurred_of(&fit.params);
+    (cs >= AUTO_SIGMA).then_some(b)
 }
 
 /// Adds `amp` times the rendering in `ws.tmp` (over the window) back to the data over the
@@ -3072,17 +3068,12 @@ impl NeighbourModel {
         if !f.status.is_ok() || !g.is_valid() || g.amplitude.is_nan() || g.amplitude <= 0.0 {
             return None;
         }
-        let th = theta_from_gaussian(g);
-        let point = |th: &crate::eval::Theta| {
-            let (cs, sx, sy, r) = crate::eval::blur_parts(th);
-            (cs >= AUTO_SIGMA).then(|| crate::eval::blur_with(th, sx, sy, r))
-        };
         let (theta, sampling) = match sampling {
-            FitSampling::Auto => match point(&th) {
-                Some(b) => (b, Sampling::Point),
-                None => (th, FitSampling::Auto.image_model()),
+            FitSampling::Auto => match crate::eval::blurred_of(g) {
+                (cs, b) if cs >= AUTO_SIGMA => (b, Sampling::Point),
+                _ => (theta_from_gaussian(g), FitSampling::Auto.image_model()),
             },
-            s => (th, s.image_model()),
+            s => (theta_from_gaussian(g), s.image_model()),
         };
         Some(NeighbourModel {
             theta,
