@@ -21,7 +21,7 @@
 //! stack): positions within a median 0.025, p99 0.12 of the bound (the pixel iteration at the
 //! default tolerance: 0.015, 0.13).
 
-use crate::eval::{Kind, Theta, gaussian_from_theta, pixel_unblur, theta_from_gaussian};
+use crate::eval::{Kind, Theta, gaussian_from_theta, theta_from_gaussian, unblurred_params};
 use crate::joint::NB;
 use bostrack_core::{DotFit, Gaussian2D, Window};
 use bostrack_model::Sampling;
@@ -354,15 +354,12 @@ impl Coupling {
             step[q] = delta[o] - own[o];
         }
         let t = self.kind.apply_step(&rep(g, self.blurred), &step);
-        let t = if self.blurred {
-            pixel_unblur(&t)
+        let params = if self.blurred {
+            unblurred_params(&t)
         } else {
-            Some(t)
+            Some(gaussian_from_theta(&t))
         };
-        match t
-            .map(|t| gaussian_from_theta(&t))
-            .filter(Gaussian2D::is_valid)
-        {
+        match params.filter(Gaussian2D::is_valid) {
             Some(g) => g,
             // (a shape the map's parameters cannot give back: the position alone; every
             // kind's first two free parameters are x0 and y0)
@@ -579,26 +576,23 @@ impl Coupling {
                 for (o, &q) in dp.iter().enumerate() {
                     t[free[q]] = b[free[q]] + d[o];
                 }
-                let t = if self.blurred {
-                    pixel_unblur(&t)
+                let params = if self.blurred {
+                    unblurred_params(&t)
                 } else {
-                    Some(t)
+                    Some(gaussian_from_theta(&t))
                 };
-                let g = t
-                    .map(|t| gaussian_from_theta(&t))
-                    .filter(Gaussian2D::is_valid)
-                    .or_else(|| {
-                        // (a shape the map's parameters cannot give back: the position alone)
-                        let mut g = gaussian_from_theta(f);
-                        let p = |q: usize| dp.iter().position(|&k| free[k] == q);
-                        if let Some(o) = p(crate::eval::IX) {
-                            g.x0 = b[crate::eval::IX] + d[o];
-                        }
-                        if let Some(o) = p(crate::eval::IY) {
-                            g.y0 = b[crate::eval::IY] + d[o];
-                        }
-                        g.is_valid().then_some(g)
-                    })?;
+                let g = params.filter(Gaussian2D::is_valid).or_else(|| {
+                    // (a shape the map's parameters cannot give back: the position alone)
+                    let mut g = gaussian_from_theta(f);
+                    let p = |q: usize| dp.iter().position(|&k| free[k] == q);
+                    if let Some(o) = p(crate::eval::IX) {
+                        g.x0 = b[crate::eval::IX] + d[o];
+                    }
+                    if let Some(o) = p(crate::eval::IY) {
+                        g.y0 = b[crate::eval::IY] + d[o];
+                    }
+                    g.is_valid().then_some(g)
+                })?;
                 let s = &self.scale[i];
                 let by = (0..dp.len())
                     .filter(|&k| s[k] > 0.0)

@@ -3,7 +3,7 @@
 use crate::FitError;
 use crate::config::{AUTO_SIGMA, Estimator, FitConfig, FitSampling, Neighbours};
 use crate::error::check_mask;
-use crate::eval::{IA, conditional_sigma, theta_from_gaussian};
+use crate::eval::{IA, theta_from_gaussian};
 use crate::fit::Fitter;
 use crate::joint::JointDot;
 use bostrack_core::{
@@ -878,12 +878,14 @@ fn linear_step(
     if !bounds.inside(&next) || bounds.at_bound(&next) {
         return None;
     }
-    let sharp = if sampling == FitSampling::Auto {
-        crate::eval::pixel_unblur(&next).filter(|t| conditional_sigma(t) >= AUTO_SIGMA)?
+    let params = if sampling == FitSampling::Auto {
+        // (the unblurred dot's conditional σ, as `conditional_sigma` of its θ)
+        crate::eval::unblurred_params(&next).filter(|g| {
+            g.sigma_x.min(g.sigma_y) * (1.0 - g.rho * g.rho).max(0.0).sqrt() >= AUTO_SIGMA
+        })?
     } else {
-        next
+        crate::eval::gaussian_from_theta(&next)
     };
-    let params = crate::eval::gaussian_from_theta(&sharp);
     if !params.is_valid() {
         return None;
     }
