@@ -127,10 +127,10 @@ pub(crate) fn blurred_of(g: &Gaussian2D) -> (f64, Theta) {
     (cs, blur_with(&t, sx, sy, r))
 }
 
-/// The parameters of the dot whose pixel-blurred θ is `b`: [`gaussian_from_theta`] of
-/// [`pixel_unblur`], from `b`'s own `exp` and `tanh` (three calls of libm where the way through
-/// the unblurred θ took nine), equal to it to a few ulp; `None` where [`pixel_unblur`] is.
-pub(crate) fn unblurred_params(b: &Theta) -> Option<Gaussian2D> {
+/// The unblurred shape of the pixel-blurred θ `b` (covariance Σ' − I/12): its variances `vx`,
+/// `vy`, covariance `c` and the amplitude factor `sqrt(det Σ' / det Σ)`; `None` where Σ' − I/12
+/// is not positive definite.
+fn unblurred_shape(b: &Theta) -> Option<(f64, f64, f64, f64)> {
     let (sx, sy, r) = (b[IU].exp(), b[IV].exp(), b[IT].tanh());
     let (vx, vy) = (sx * sx - PIXEL_VAR, sy * sy - PIXEL_VAR);
     let c = r * sx * sy;
@@ -139,10 +139,18 @@ pub(crate) fn unblurred_params(b: &Theta) -> Option<Gaussian2D> {
         return None;
     }
     let det_b = sx * sx * sy * sy * (1.0 - r * r);
+    Some((vx, vy, c, (det_b / det).sqrt()))
+}
+
+/// The parameters of the dot whose pixel-blurred θ is `b`: [`gaussian_from_theta`] of
+/// [`pixel_unblur`], from `b`'s own `exp` and `tanh` (three calls of libm where the way through
+/// the unblurred θ took nine), equal to it to a few ulp; `None` where [`pixel_unblur`] is.
+pub(crate) fn unblurred_params(b: &Theta) -> Option<Gaussian2D> {
+    let (vx, vy, c, scale) = unblurred_shape(b)?;
     Some(Gaussian2D {
         x0: b[IX],
         y0: b[IY],
-        amplitude: b[IA] * (det_b / det).sqrt(),
+        amplitude: b[IA] * scale,
         sigma_x: vx.sqrt(),
         sigma_y: vy.sqrt(),
         rho: c / (vx * vy).sqrt(),
@@ -152,19 +160,12 @@ pub(crate) fn unblurred_params(b: &Theta) -> Option<Gaussian2D> {
 
 /// Inverse of [`pixel_blur`]; `None` when Σ' - I/12 is not positive definite.
 pub(crate) fn pixel_unblur(b: &Theta) -> Option<Theta> {
-    let (sx, sy, r) = (b[IU].exp(), b[IV].exp(), b[IT].tanh());
-    let (vx, vy) = (sx * sx - PIXEL_VAR, sy * sy - PIXEL_VAR);
-    let c = r * sx * sy;
-    let det = vx * vy - c * c;
-    if !(vx > 0.0 && vy > 0.0 && det > 0.0 && det.is_finite()) {
-        return None;
-    }
-    let det_b = sx * sx * sy * sy * (1.0 - r * r);
+    let (vx, vy, c, scale) = unblurred_shape(b)?;
     let mut t = *b;
     t[IU] = 0.5 * vx.ln();
     t[IV] = 0.5 * vy.ln();
     t[IT] = (c / (vx * vy).sqrt()).atanh();
-    t[IA] = b[IA] * (det_b / det).sqrt();
+    t[IA] = b[IA] * scale;
     Some(t)
 }
 
