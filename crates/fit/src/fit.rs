@@ -238,57 +238,35 @@ impl Fitter {
         for j in 0..c.height {
             let y = c.y as usize + j;
             let row = &img.row(y)[x0..x0 + cw];
-            // a row of usable pixels (nearly every row) is copied whole: the tests below
-            // without a branch per pixel
-            // (counts: a sum of the tests vectorises, a test with an early exit does not)
-            let usable_row = row
-                .iter()
-                .map(|&v| usize::from((v < level) & (v > f64::NEG_INFINITY)))
-                .sum::<usize>()
-                == cw
-                && mask.is_none_or(|m| {
-                    m.as_slice()[y * iw + x0..][..cw]
-                        .iter()
-                        .map(|&k| usize::from(k))
-                        .sum::<usize>()
-                        == cw
-                });
+            let mask_row = mask.map(|m| &m.as_slice()[y * iw + x0..][..cw]);
             let less_row = less.map(|l| &l[y * iw + x0..][..cw]);
-            if usable_row {
-                let k0 = j * cw;
-                match less_row {
-                    Some(c) => {
-                        for ((d, &v), &c) in ws.data[k0..k0 + cw].iter_mut().zip(row).zip(c) {
-                            *d = v - c;
-                        }
-                    }
-                    None => ws.data[k0..k0 + cw].copy_from_slice(row),
-                }
-                ws.keep[k0..k0 + cw].fill(1.0);
-                n_used += cw;
-                continue;
+            let k0 = j * cw;
+            let (data, keep) = (&mut ws.data[k0..k0 + cw], &mut ws.keep[k0..k0 + cw]);
+            // one pass per row, no branch per pixel: a pixel is usable below the saturation
+            // level, finite and kept by the mask; its value less the canvas, or 0 with weight 0
+            // (NaN and ±∞ are never below the level and above −∞)
+            // (counts: a sum of the tests vectorises, a test with an early exit does not)
+            let mut used = 0usize;
+            for i in 0..cw {
+                let v = row[i];
+                let ok = (v < level) & (v > f64::NEG_INFINITY) & mask_row.is_none_or(|m| m[i]);
+                let c = less_row.map_or(0.0, |l| l[i]);
+                data[i] = if ok { v - c } else { 0.0 };
+                keep[i] = if ok { 1.0 } else { 0.0 };
+                used += usize::from(ok);
             }
-            for (i, &v) in row.iter().enumerate() {
-                let k = j * c.width + i;
-                let x = c.x as usize + i;
-                let usable = if !v.is_finite() {
-                    flags |= DotFlags::NAN_PIXELS;
-                    false
-                } else if mask.is_some_and(|m| !m.keeps(x, y)) {
-                    flags |= DotFlags::MASKED;
-                    false
-                } else if img.is_saturated(v) {
-                    flags |= DotFlags::SATURATED;
-                    false
-                } else {
-                    true
-                };
-                ws.data[k] = if usable { v } else { 0.0 };
-                ws.keep[k] = if usable { 1.0 } else { 0.0 };
-                if let Some(c) = less_row {
-                    ws.data[k] -= ws.keep[k] * c[i];
+            n_used += used;
+            if used < cw {
+                // (rare: which problems the row has)
+                for (i, &v) in row.iter().enumerate() {
+                    if !v.is_finite() {
+                        flags |= DotFlags::NAN_PIXELS;
+                    } else if mask_row.is_some_and(|m| !m[i]) {
+                        flags |= DotFlags::MASKED;
+                    } else if img.is_saturated(v) {
+                        flags |= DotFlags::SATURATED;
+                    }
                 }
-                n_used += usable as usize;
             }
         }
         ws.n_used = n_used;
