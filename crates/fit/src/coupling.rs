@@ -69,7 +69,7 @@ pub(crate) struct Coupling {
     rev: Vec<u32>,
     /// Per link, `M` restricted to the dot parameters (the free ones without the background) of
     /// both dots, by columns, each padded to 8.
-    m: Vec<[[f32; 8]; NB]>,
+    m: Vec<[crate::simd::LinkColumn; NB]>,
     /// Per dot, its Fisher matrix at `fits` over its window (with its fit's weights), for the
     /// Gauss-Newton step that stands for an image's first pass (`None`: that dot is fitted).
     pub(crate) looked: Vec<Option<crate::dots::Looked>>,
@@ -88,7 +88,7 @@ pub(crate) struct Solved {
 /// One dot's links as the builder gives them: its free parameters' standard deviations, and
 /// per neighbour its index and matrix (see [`crate::joint::DotCoupling`]) as the map keeps it
 /// ([`Coupling::link`]).
-pub(crate) type DotLinks = Option<([f64; 7], Vec<(u32, [[f32; 8]; NB])>)>;
+pub(crate) type DotLinks = Option<([f64; 7], Vec<(u32, [crate::simd::LinkColumn; NB])>)>;
 
 /// The positions among the free parameters of `kind` of its dot parameters (all but the
 /// background).
@@ -102,9 +102,9 @@ fn dot_params(kind: Kind) -> &'static [usize] {
 impl Coupling {
     /// A link's matrix as the map keeps it: `m` (from [`crate::joint::coupling`], rows and
     /// columns over the free parameters) restricted to the dot parameters of both dots.
-    pub(crate) fn link(kind: Kind, m: &[[f64; 8]; NB]) -> [[f32; 8]; NB] {
+    pub(crate) fn link(kind: Kind, m: &[[f64; 8]; NB]) -> [crate::simd::LinkColumn; NB] {
         let dp = dot_params(kind);
-        let mut out = [[0.0f32; 8]; NB];
+        let mut out = [[0.0f32; crate::simd::LINK_ROWS]; NB];
         for (c32, c) in out.iter_mut().zip(m) {
             for (o, &q) in dp.iter().enumerate() {
                 c32[o] = c[q] as f32;

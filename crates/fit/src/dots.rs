@@ -2925,7 +2925,10 @@ fn coupling_map(
         .map(|(s, f)| JointDot::from_theta(rep(&f.params), s.window.clip(w, h)?, kind))
         .collect();
     type PerDot = Option<(
-        ([f64; 7], Vec<(u32, [[f32; 8]; crate::joint::NB])>),
+        (
+            [f64; 7],
+            Vec<(u32, [crate::simd::LinkColumn; crate::joint::NB])>,
+        ),
         Option<Looked>,
     )>;
     let per_dot: Vec<PerDot> = seeds

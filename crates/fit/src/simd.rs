@@ -530,14 +530,23 @@ fn exp8_lanes(x: [f64; 8]) -> [f64; 8] {
     out
 }
 
+/// The rows a coupling map's link keeps per column: a dot's parameters but its background, at
+/// most six (a column widened to 8 lanes, its last two 0, in [`link_row`]; stored padded to 8,
+/// a map's sweeps read a quarter more bytes, their cost on the real frame).
+pub(crate) const LINK_ROWS: usize = 6;
+
+/// A column of a coupling map's link matrix ([`LINK_ROWS`] rows).
+pub(crate) type LinkColumn = [f32; LINK_ROWS];
+
 /// One row of the coupling map's sweeps ([`crate::coupling`]): `v = own − Σ_links Σ_c m[c] · x_c`
-/// over the links in order, each link's columns `c` in order (`m` its matrix by columns, each
-/// padded to 8 rows, `x = now[nb]` the neighbour's correction), a product then a difference per
-/// row (no fused multiply-add), on every path: the same bits as the plain loop.
+/// over the links in order, each link's columns `c` in order (`m` its matrix by columns of
+/// [`LINK_ROWS`], widened to 8 rows with zeros, `x = now[nb]` the neighbour's correction), a
+/// product then a difference per row (no fused multiply-add), on every path: the same bits as
+/// the plain loop.
 pub(crate) struct LinkRow<'a, const NB: usize> {
     pub own: [f64; 8],
     pub nb: &'a [u32],
-    pub m: &'a [[[f32; 8]; NB]],
+    pub m: &'a [[LinkColumn; NB]],
     pub now: &'a [[f64; 8]],
 }
 
@@ -558,7 +567,13 @@ impl<const NB: usize> WithSimd for LinkRow<'_, NB> {
                 let dj = &now[j as usize];
                 for (col, &x) in mj.iter().zip(dj) {
                     // (the f32 column widened once, then as lanes)
-                    let c: [f64; 8] = std::array::from_fn(|r| f64::from(col[r]));
+                    let c: [f64; 8] = std::array::from_fn(|r| {
+                        if r < LINK_ROWS {
+                            f64::from(col[r])
+                        } else {
+                            0.0
+                        }
+                    });
                     let (ch, ct) = S::as_simd_f64s(&c);
                     let xs = simd.splat_f64s(x);
                     for (o, cc) in vh.iter_mut().zip(ch) {
@@ -980,7 +995,7 @@ mod tests {
                 .map(|_| std::array::from_fn(|_| rng.random::<f64>() - 0.5))
                 .collect();
             let nb: Vec<u32> = (0..links).map(|_| rng.random_range(0..n as u32)).collect();
-            let m: Vec<[[f32; 8]; 6]> = (0..links)
+            let m: Vec<[LinkColumn; 6]> = (0..links)
                 .map(|_| {
                     std::array::from_fn(|_| std::array::from_fn(|_| rng.random::<f32>() - 0.5))
                 })
