@@ -2585,7 +2585,7 @@ fn for_each_neighbour(
 const BAND: usize = 32;
 
 /// A rendering's buffers: the box's values and [`crate::eval::exp_grid`]'s two rows.
-type RenderBufs = (Vec<f64>, Vec<f64>, Vec<f64>);
+type RenderScratch = (Vec<f64>, Vec<f64>, Vec<f64>);
 
 /// Every neighbour model of a pass rendered once over its 5σ box into an image-sized canvas.
 /// A window then has its neighbours subtracted by reading the canvas and adding back its own
@@ -2656,7 +2656,7 @@ impl Canvas {
                 bands[b.y_lo / band].push(j as u32);
             }
         }
-        let draw = |rows: &mut [f64], r0: usize, list: &[u32], bufs: &mut RenderBufs| {
+        let draw = |rows: &mut [f64], r0: usize, list: &[u32], bufs: &mut RenderScratch| {
             let (out, v, q) = bufs;
             for &j in list {
                 let (Some(m), Some(b)) = (&models[j as usize], boxes[j as usize]) else {
@@ -2678,7 +2678,7 @@ impl Canvas {
             .par_chunks_mut(pair)
             .zip(bands.par_iter().step_by(2))
             .enumerate()
-            .for_each_init(RenderBufs::default, |bufs, (k, (rows, list))| {
+            .for_each_init(RenderScratch::default, |bufs, (k, (rows, list))| {
                 draw(rows, 2 * k * band, list, bufs)
             });
         if bands.len() > 1 {
@@ -2686,7 +2686,7 @@ impl Canvas {
                 .par_chunks_mut(pair)
                 .zip(bands[1..].par_iter().step_by(2))
                 .enumerate()
-                .for_each_init(RenderBufs::default, |bufs, (k, (rows, list))| {
+                .for_each_init(RenderScratch::default, |bufs, (k, (rows, list))| {
                     draw(rows, (2 * k + 1) * band, list, bufs)
                 });
         }

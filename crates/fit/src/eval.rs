@@ -29,8 +29,9 @@
 //! and `G` is accumulated directly.
 //!
 //! `E` over a window needs only 8 values of `exp` ([`exp_grid`], computed together:
-//! `simd::exp8`): along a row the exponent is quadratic in the column, so `E(i+1) = E(i)·r(i)` with `r(i+1) = r(i)·e^{-a}`; the row-to-row
-//! step multiplies every column by `e^{-bX_i}` (a vector product, no serial dependence).
+//! `simd::exp8`): along a row the exponent is quadratic in the column, so
+//! `E(i+1) = E(i)·r(i)` with `r(i+1) = r(i)·e^{-a}`; the row-to-row step multiplies every column
+//! by `e^{-bX_i}` (a vector product, no serial dependence).
 
 use crate::simd;
 use bostrack_core::{Gaussian2D, NoiseModel};
@@ -298,9 +299,10 @@ impl Kind {
 }
 
 /// Fills `out[j*w + i] = exp(-(a X² + 2b XY + c Y²)/2)` with `X = x_first + i`,
-/// `Y = y_first + j`, for a `w × h` grid, using 8 values of `exp` (at once: [`simd::exp8`]) and
-/// two multiplications per point (see the module doc). Falls back to one `exp` per point when an intermediate factor
-/// could leave the normal floating-point range (very narrow dots in wide windows).
+/// `Y = y_first + j`, for a `w × h` grid, using 8 values of `exp` (at once:
+/// [`simd::exp8`]) and two multiplications per point (see the module doc). Falls back
+/// to one `exp` per point when an intermediate factor could leave the normal floating-point
+/// range (very narrow dots in wide windows).
 pub(crate) fn exp_grid(
     a: f64,
     b: f64,
