@@ -68,7 +68,7 @@ pub(crate) struct Coupling {
     rev_start: Vec<usize>,
     rev: Vec<u32>,
     /// Per link, `M` restricted to the dot parameters (the free ones without the background) of
-    /// both dots, by columns, each padded to 8.
+    /// both dots, by columns of [`crate::simd::LINK_ROWS`] (f32).
     m: Vec<[crate::simd::LinkColumn; NB]>,
     /// Per dot, its Fisher matrix at `fits` over its window (with its fit's weights), for the
     /// Gauss-Newton step that stands for an image's first pass (`None`: that dot is fitted).
