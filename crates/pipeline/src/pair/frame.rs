@@ -424,8 +424,8 @@ pub fn process_image(
     // each read them at random, a cache miss per dot), then each selection on its own, in
     // parallel
     let n_valid = counts.valid;
-    let mut cols: [Vec<f64>; 16] = std::array::from_fn(|_| Vec::with_capacity(n_valid));
-    for d in dots.iter().filter(|d| d.valid) {
+    type Columns = [Vec<f64>; 16];
+    let push = |cols: &mut Columns, d: &PairDot| {
         let pair = |v: Option<[f64; 2]>| [v.map(|v| v[0]), v.map(|v| v[1])];
         let [dx, dy] = pair(d.displacement);
         let [ax, ay] = pair(d.ar);
@@ -455,7 +455,25 @@ pub fn process_image(
                 c.push(v);
             }
         }
-    }
+    };
+    // (blocks of dots in parallel, then each column's blocks in order: the dots' order)
+    let blocks: Vec<Columns> = dots
+        .par_chunks(2048)
+        .map(|block| {
+            let mut cols: Columns = std::array::from_fn(|_| Vec::with_capacity(block.len()));
+            for d in block.iter().filter(|d| d.valid) {
+                push(&mut cols, d);
+            }
+            cols
+        })
+        .collect();
+    let mut cols: Columns = std::array::from_fn(|k| {
+        let mut c = Vec::with_capacity(n_valid);
+        for b in &blocks {
+            c.extend_from_slice(&b[k]);
+        }
+        c
+    });
     let m: Vec<Option<f64>> = cols.par_iter_mut().map(|c| median_of(c)).collect();
     // (the amplification ratios' columns, reordered by their medians: the same values)
     let p99: Vec<Option<f64>> = cols[4..6]
