@@ -929,6 +929,27 @@ fn linear_step(
     })
 }
 
+/// Where the Gauss-Newton step of the look `l` leads (the dot's parameters), as the start of a
+/// full fit; `None` where it leaves the window's bounds or gives no valid dot (the prior is
+/// the start then).
+fn step_start(
+    ws: &crate::eval::Workspace,
+    l: &Look,
+    kind: crate::eval::Kind,
+    sampling: FitSampling,
+) -> Option<Gaussian2D> {
+    let next = kind.apply_step(&l.theta, &l.step);
+    if !crate::solver::Bounds::for_window(ws.wx, ws.wy, ws.w, ws.h).inside(&next) {
+        return None;
+    }
+    let g = if sampling == FitSampling::Auto {
+        crate::eval::unblurred_params(&next)?
+    } else {
+        crate::eval::gaussian_from_theta(&next)
+    };
+    (g.is_valid() && g.amplitude > 0.0).then_some(g)
+}
+
 /// The pull of a neighbour that moved by `moved` standard deviations and has `share` of its
 /// squared profile in the window (infinite for a neighbour that was fitted anew, as a dot that
 /// failed and recovered is, when it reaches the window at all).
@@ -1794,22 +1815,31 @@ impl<'a> Iteration<'a> {
                     });
                 }
             }
+            // (a first pass's dot that the step from its prior does not settle: its full fit
+            // starts where that step leads, the prior's Gauss-Newton step, closer to the
+            // solution than the prior: 3.5 → 2.8 iterations per fit on the real frame's 1,374)
+            let mut stepped_start = None;
             if let Some((from, looked, still, keep)) = from {
                 let l = look_at.and_then(|tb| look(&mut f.ws, tb, looked, fkind, noise, own_back));
                 if l.as_ref().zip(still).is_some_and(|(l, t)| l.moves <= t) {
                     return None;
                 }
-                if let Some(l) = l.filter(|l| l.moves <= LINEAR_STEP_MAX)
+                if let Some(l) = l.as_ref().filter(|l| l.moves <= LINEAR_STEP_MAX)
                     && let Some(stepped) =
-                        linear_step(&f.ws, &from, looked, keep, &l, fkind, cfg.sampling)
+                        linear_step(&f.ws, &from, looked, keep, l, fkind, cfg.sampling)
                 {
                     return Some(stepped);
                 }
+                if check.is_none() {
+                    stepped_start = l.and_then(|l| step_start(&f.ws, &l, fkind, cfg.sampling));
+                }
             }
-            let (start, hint) = if own.status.is_ok() {
-                ([own.params.x0, own.params.y0], Some(own.params))
-            } else {
-                (s.centre, None)
+            // (`seen`: the dot as its neighbours saw it, its move measured from there)
+            let seen = own.status.is_ok().then_some(own.params);
+            let (start, hint) = match stepped_start {
+                Some(g) => ([g.x0, g.y0], Some(g)),
+                None if own.status.is_ok() => ([own.params.x0, own.params.y0], Some(own.params)),
+                None => (s.centre, None),
             };
             let mut fit = if look_for {
                 f.fit_loaded_present(flags, s.centre, noise)?
@@ -1820,7 +1850,14 @@ impl<'a> Iteration<'a> {
                     own.status,
                     FitStatus::Singular | FitStatus::LeftWindow | FitStatus::NonFinite
                 );
-                f.fit_loaded(flags, start, hint.as_ref(), noise, held_first)
+                f.fit_loaded_seen(
+                    flags,
+                    start,
+                    hint.as_ref(),
+                    seen.as_ref(),
+                    noise,
+                    held_first,
+                )
             };
             fit.index = s.index;
             fit.flags |= s.flags;

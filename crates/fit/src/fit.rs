@@ -111,9 +111,9 @@ pub(crate) struct LastFit {
     pub chi2: f64,
     /// Used pixels minus free parameters.
     pub dof: usize,
-    /// Mahalanobis length `sqrt(Δᵀ F Δ)` of the change from the hint to the solution (F the
-    /// Fisher matrix at the solution; the change in standard deviations); infinite without a
-    /// hint.
+    /// Mahalanobis length `sqrt(Δᵀ F Δ)` of the change from the hint (or the parameters the
+    /// neighbours saw, [`Fitter::fit_loaded_seen`]) to the solution (F the Fisher matrix at the
+    /// solution; the change in standard deviations); infinite without one.
     pub moved: f64,
     /// The Fisher matrix of the free parameters at the solution, when it is that of the
     /// point-sampled model of θ (the pixel-blurred dot for `auto`, θ itself for `point`): what
@@ -317,6 +317,20 @@ impl Fitter {
         noise: &NoiseModel,
         held_first: bool,
     ) -> DotFit {
+        self.fit_loaded_seen(flags, start, hint, hint, noise, held_first)
+    }
+
+    /// [`Fitter::fit_loaded`] from `hint`, its move ([`LastFit::moved`]) measured from `seen`
+    /// instead (the dot as its neighbours saw it, where the start is another value).
+    pub(crate) fn fit_loaded_seen(
+        &mut self,
+        flags: DotFlags,
+        start: [f64; 2],
+        hint: Option<&Gaussian2D>,
+        seen: Option<&Gaussian2D>,
+        noise: &NoiseModel,
+        held_first: bool,
+    ) -> DotFit {
         self.last = LastFit::default();
         let ws = &mut self.ws;
         let centre = [
@@ -390,8 +404,8 @@ impl Fitter {
                         .ws
                         .n_used
                         .saturating_sub(kind.n_free() - usize::from(out.rho_held.is_some())),
-                    moved: match hint {
-                        // (a shape held at another value than the hint's: moved by more than
+                    moved: match seen {
+                        // (a shape held at another value than the one seen: moved by more than
                         // its free parameters say)
                         Some(h)
                             if out.status.is_ok()
