@@ -873,20 +873,12 @@ fn linear_step(
     sampling: FitSampling,
 ) -> Option<Item> {
     use crate::eval::IB;
-    let next = kind.apply_step(&l.theta, &l.step);
-    let bounds = crate::solver::Bounds::for_window(ws.wx, ws.wy, ws.w, ws.h);
-    if !bounds.inside(&next) || bounds.at_bound(&next) {
-        return None;
-    }
-    let params = if sampling == FitSampling::Auto {
-        // (the unblurred dot's conditional σ, as `conditional_sigma` of its θ)
-        crate::eval::unblurred_params(&next).filter(|g| {
-            g.sigma_x.min(g.sigma_y) * (1.0 - g.rho * g.rho).max(0.0).sqrt() >= AUTO_SIGMA
-        })?
-    } else {
-        crate::eval::gaussian_from_theta(&next)
-    };
-    if !params.is_valid() {
+    let (next, bounds, params) = stepped(ws, l, kind, sampling)?;
+    // (the unblurred dot's conditional σ, as `conditional_sigma` of its θ)
+    let point = sampling != FitSampling::Auto
+        || params.sigma_x.min(params.sigma_y) * (1.0 - params.rho * params.rho).max(0.0).sqrt()
+            >= AUTO_SIGMA;
+    if bounds.at_bound(&next) || !point || !params.is_valid() {
         return None;
     }
     // Σ w (r − Jδ)² = χ² − vᵀδ at the Gauss-Newton step (the unweighted sum scaled alike)
@@ -929,24 +921,38 @@ fn linear_step(
     })
 }
 
-/// Where the Gauss-Newton step of the look `l` leads (the dot's parameters), as the start of a
-/// full fit; `None` where it leaves the window's bounds or gives no valid dot (the prior is
-/// the start then).
+/// Where the Gauss-Newton step of the look `l` leads: the point-model θ, the window's bounds
+/// (which it lies inside) and the dot's parameters (unblurred for `auto`); `None` outside the
+/// bounds or where no dot unblurs.
+fn stepped(
+    ws: &crate::eval::Workspace,
+    l: &Look,
+    kind: crate::eval::Kind,
+    sampling: FitSampling,
+) -> Option<(crate::eval::Theta, crate::solver::Bounds, Gaussian2D)> {
+    let next = kind.apply_step(&l.theta, &l.step);
+    let bounds = crate::solver::Bounds::for_window(ws.wx, ws.wy, ws.w, ws.h);
+    if !bounds.inside(&next) {
+        return None;
+    }
+    let params = if sampling == FitSampling::Auto {
+        crate::eval::unblurred_params(&next)?
+    } else {
+        crate::eval::gaussian_from_theta(&next)
+    };
+    Some((next, bounds, params))
+}
+
+/// Where the Gauss-Newton step of the look `l` leads ([`stepped`]), as the start of a full fit;
+/// `None` where it leaves the window's bounds or gives no valid dot (the prior is the start
+/// then).
 fn step_start(
     ws: &crate::eval::Workspace,
     l: &Look,
     kind: crate::eval::Kind,
     sampling: FitSampling,
 ) -> Option<Gaussian2D> {
-    let next = kind.apply_step(&l.theta, &l.step);
-    if !crate::solver::Bounds::for_window(ws.wx, ws.wy, ws.w, ws.h).inside(&next) {
-        return None;
-    }
-    let g = if sampling == FitSampling::Auto {
-        crate::eval::unblurred_params(&next)?
-    } else {
-        crate::eval::gaussian_from_theta(&next)
-    };
+    let (_, _, g) = stepped(ws, l, kind, sampling)?;
     (g.is_valid() && g.amplitude > 0.0).then_some(g)
 }
 
